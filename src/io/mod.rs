@@ -1,0 +1,6 @@
+//! Reading scans and alignments from files, writing results. Bytes in, [`Scan`](crate::scan::Scan)s out;
+//! no normals, pixels or progress bars here.
+
+pub mod align;
+pub mod atomic;
+pub mod ply;

@@ -1,0 +1,2 @@
+//! Merging views.
+pub mod border;
