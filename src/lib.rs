@@ -18,6 +18,7 @@ pub mod pipeline;
 pub mod projection;
 pub mod report;
 pub mod scan;
+pub mod sensor;
 pub mod ssao;
 pub mod synth;
 

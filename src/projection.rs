@@ -1,1 +1,325 @@
-//! projection
+//! Sensor models: a scan-local point ↔ a continuous pixel position and depth, the pixel radius
+//! of a sphere at a given depth, and where the sensor is. Holds no buffers or points.
+//!
+//! Conventions (scan-local frame, metres):
+//! - **Equirectangular** (terrestrial laser scanner at the origin): `rot` turns local
+//!   coordinates into the sensor frame whose +z is the pole. Azimuth `az = atan2(y, x)` taken
+//!   relative to `az_ref` (so the seam lies where the scan has no data), elevation
+//!   `el = atan2(z, hypot(x, y))`; `x_px = sx·az + ox`, `y_px = sy·el + oy` (signed scales).
+//!   A map covering the whole circle wraps in x.
+//! - **Perspective** (camera or triangulation scanner at the origin): sensor frame looks along
+//!   +z; `(u, v) = (X/Z, Y/Z)` and `(x_px, y_px) = A·(u, v) + c`.
+//! - **Orthographic** (linear-motion scanner): `x_px = a·p + a0`, `y_px = b·p + b0`, a
+//!   parallel projection along `a × b`; the sensor is at infinity in direction `toward`.
+//!
+//! Depth is the distance to the sensor (equirect, perspective) or the distance along the
+//! view axis from the scan's nearest point (orthographic). Pixel `i` spans `[i, i+1)`.
+
+use glam::{Mat2, Mat3, Vec2, Vec3, Vec4};
+use serde::Serialize;
+
+/// Which sensor model a scan uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SensorModel {
+    /// Azimuth × elevation map of a scanner at the origin.
+    Equirect,
+    /// Pinhole camera at the origin.
+    Perspective,
+    /// Parallel projection (linear sweep).
+    Ortho,
+}
+
+impl std::fmt::Display for SensorModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            SensorModel::Equirect => "equirect",
+            SensorModel::Perspective => "perspective",
+            SensorModel::Ortho => "ortho",
+        })
+    }
+}
+
+/// Model-specific parameters of a [`Projection`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Model {
+    /// See the module docs.
+    Equirect {
+        /// Local → sensor frame (pole = +z).
+        rot: Mat3,
+        /// Azimuth (radians) mapped to the middle of the seam's opposite side.
+        az_ref: f32,
+        /// Pixels per radian of azimuth (signed).
+        sx: f32,
+        /// x offset.
+        ox: f32,
+        /// Pixels per radian of elevation (signed).
+        sy: f32,
+        /// y offset.
+        oy: f32,
+    },
+    /// See the module docs.
+    Perspective {
+        /// Local → sensor frame (looks along +z).
+        rot: Mat3,
+        /// Image-plane affine (pixels per unit of X/Z, Y/Z).
+        a: Mat2,
+        /// Principal point offset.
+        c: Vec2,
+    },
+    /// See the module docs.
+    Ortho {
+        /// x_px gradient (pixels per metre).
+        a: Vec3,
+        /// x_px offset.
+        a0: f32,
+        /// y_px gradient.
+        b: Vec3,
+        /// y_px offset.
+        b0: f32,
+        /// Unit direction from the surface towards the sensor.
+        toward: Vec3,
+        /// Depth of a point = `depth0 - toward·p`.
+        depth0: f32,
+    },
+}
+
+/// A sensor model with its map size: everything needed to go between a scan's local points
+/// and its G-buffer pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Projection {
+    /// Parameters.
+    pub model: Model,
+    /// Map width in pixels.
+    pub width: usize,
+    /// Map height in pixels.
+    pub height: usize,
+    /// True when x wraps around (a full-circle equirectangular map).
+    pub wrap_x: bool,
+}
+
+/// A projected point: continuous pixel coordinates and depth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Projected {
+    /// Continuous x (pixel `floor(x)`).
+    pub x: f32,
+    /// Continuous y.
+    pub y: f32,
+    /// Distance to the sensor (see module docs), metres.
+    pub depth: f32,
+}
+
+/// Wraps an angle into (-π, π].
+#[inline]
+pub fn wrap_angle(a: f32) -> f32 {
+    use std::f32::consts::{PI, TAU};
+    let mut r = a % TAU;
+    if r > PI {
+        r -= TAU;
+    } else if r <= -PI {
+        r += TAU;
+    }
+    r
+}
+
+impl Projection {
+    /// Which of the three models this is.
+    pub fn sensor_model(&self) -> SensorModel {
+        match self.model {
+            Model::Equirect { .. } => SensorModel::Equirect,
+            Model::Perspective { .. } => SensorModel::Perspective,
+            Model::Ortho { .. } => SensorModel::Ortho,
+        }
+    }
+
+    /// Projects a local point. `None` when the point has no image (at the sensor, behind a
+    /// perspective camera, or non-finite). The result may lie outside the map.
+    #[inline]
+    pub fn project(&self, p: Vec3) -> Option<Projected> {
+        match self.model {
+            Model::Equirect {
+                rot,
+                az_ref,
+                sx,
+                ox,
+                sy,
+                oy,
+            } => {
+                let s = rot * p;
+                let r2 = s.x * s.x + s.y * s.y;
+                let depth = (r2 + s.z * s.z).sqrt();
+                if !(depth > 0.0 && depth.is_finite()) {
+                    return None;
+                }
+                let az = wrap_angle(s.y.atan2(s.x) - az_ref);
+                let el = s.z.atan2(r2.sqrt());
+                Some(Projected {
+                    x: sx * az + ox,
+                    y: sy * el + oy,
+                    depth,
+                })
+            }
+            Model::Perspective { rot, a, c } => {
+                let s = rot * p;
+                if !(s.z > 0.0 && s.is_finite()) {
+                    return None;
+                }
+                let uv = Vec2::new(s.x / s.z, s.y / s.z);
+                let px = a * uv + c;
+                Some(Projected {
+                    x: px.x,
+                    y: px.y,
+                    depth: s.length(),
+                })
+            }
+            Model::Ortho {
+                a,
+                a0,
+                b,
+                b0,
+                toward,
+                depth0,
+            } => {
+                if !p.is_finite() {
+                    return None;
+                }
+                Some(Projected {
+                    x: a.dot(p) + a0,
+                    y: b.dot(p) + b0,
+                    depth: depth0 - toward.dot(p),
+                })
+            }
+        }
+    }
+
+    /// The pixel index (row-major) holding continuous position `(x, y)`, wrapping x on a
+    /// full-circle map; `None` outside the map.
+    #[inline]
+    pub fn pixel_index(&self, x: f32, y: f32) -> Option<usize> {
+        self.pixel_at(x.floor() as i64, y.floor() as i64)
+    }
+
+    /// The index of integer pixel `(ix, iy)`, wrapping x on a full-circle map.
+    #[inline]
+    pub fn pixel_at(&self, ix: i64, iy: i64) -> Option<usize> {
+        let (w, h) = (self.width as i64, self.height as i64);
+        if iy < 0 || iy >= h || w == 0 {
+            return None;
+        }
+        let ix = if self.wrap_x {
+            ix.rem_euclid(w)
+        } else if ix < 0 || ix >= w {
+            return None;
+        } else {
+            ix
+        };
+        Some((iy * w + ix) as usize)
+    }
+
+    /// Inverse of [`project`](Self::project): the local point at continuous pixel `(x, y)` and
+    /// `depth`. Used by the virtual scanner and round-trip tests.
+    pub fn unproject(&self, x: f32, y: f32, depth: f32) -> Vec3 {
+        self.ray(x, y).map(|(o, d)| o + d * depth).unwrap_or(Vec3::ZERO)
+    }
+
+    /// The viewing ray through continuous pixel `(x, y)`: origin `o` and direction `d` such that
+    /// `o + t·d` has depth `t` (`d` is a unit vector for point sensors, and for an orthographic
+    /// sensor whose view axis is perpendicular to its image axes). `None` for a degenerate model.
+    pub fn ray(&self, x: f32, y: f32) -> Option<(Vec3, Vec3)> {
+        match self.model {
+            Model::Equirect {
+                rot,
+                az_ref,
+                sx,
+                ox,
+                sy,
+                oy,
+            } => {
+                if sx == 0.0 || sy == 0.0 {
+                    return None;
+                }
+                let az = (x - ox) / sx + az_ref;
+                let el = (y - oy) / sy;
+                let s = Vec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+                Some((Vec3::ZERO, rot.transpose() * s))
+            }
+            Model::Perspective { rot, a, c } => {
+                if a.determinant() == 0.0 {
+                    return None;
+                }
+                let uv = a.inverse() * (Vec2::new(x, y) - c);
+                let s = Vec3::new(uv.x, uv.y, 1.0).normalize();
+                Some((Vec3::ZERO, rot.transpose() * s))
+            }
+            Model::Ortho {
+                a,
+                a0,
+                b,
+                b0,
+                toward,
+                depth0,
+            } => {
+                let m = Mat3::from_cols(a, b, toward).transpose();
+                if !(m.determinant().abs() > 1e-20) {
+                    return None;
+                }
+                let inv = m.inverse();
+                let o = inv * Vec3::new(x - a0, y - b0, depth0);
+                Some((o, inv * Vec3::new(0.0, 0.0, -1.0)))
+            }
+        }
+    }
+
+    /// Unit direction from local point `p` towards the sensor (zero at the sensor itself).
+    #[inline]
+    pub fn toward_sensor(&self, p: Vec3) -> Vec3 {
+        match self.model {
+            Model::Ortho { toward, .. } => toward,
+            _ => (-p).normalize_or_zero(),
+        }
+    }
+
+    /// The sensor as a homogeneous local point: `(x, y, z, 1)` for a sensor at a point,
+    /// `(dx, dy, dz, 0)` for one at infinity in direction `d`. Transforms with a 4×4 pose.
+    pub fn sensor_homogeneous(&self) -> Vec4 {
+        match self.model {
+            Model::Ortho { toward, .. } => toward.extend(0.0),
+            _ => Vec4::new(0.0, 0.0, 0.0, 1.0),
+        }
+    }
+
+    /// Pixel radii `(rx, ry)` of a sphere of radius `r` (metres) at `depth`, seen at continuous
+    /// row `y`: the paper's depth-adaptive disk, widened in x near an equirect map's poles so
+    /// that it stays a disk on the sphere.
+    #[inline]
+    pub fn disk_radius(&self, r: f32, depth: f32, y: f32) -> (f32, f32) {
+        match self.model {
+            Model::Equirect { sx, sy, oy, .. } => {
+                let beta = angular_radius(r, depth);
+                let el = if sy != 0.0 { (y - oy) / sy } else { 0.0 };
+                let c = el.cos().max(1e-3);
+                let ry = beta * sy.abs();
+                let rx = (beta * sx.abs() / c).min(self.width as f32 * 0.5);
+                (rx, ry)
+            }
+            Model::Perspective { a, .. } => {
+                let t = angular_radius(r, depth).tan();
+                (
+                    t * a.row(0).length(),
+                    t * a.row(1).length(),
+                )
+            }
+            Model::Ortho { a, b, .. } => (r * a.length(), r * b.length()),
+        }
+    }
+}
+
+/// Angle subtended by the radius of a sphere of radius `r` at distance `depth` (radians),
+/// capped at 89° when the sensor is inside the sphere.
+#[inline]
+fn angular_radius(r: f32, depth: f32) -> f32 {
+    if depth <= r || depth <= 0.0 {
+        return 89f32.to_radians();
+    }
+    (r / depth).asin().min(89f32.to_radians())
+}

@@ -1,1 +1,107 @@
-//! ssao
+//! Screen-space ambient occlusion of one view: per-pixel AO from the G-buffer, then a blur,
+//! then per-point values and flags. Sees one scan, never its pose or other scans.
+
+pub mod blur;
+pub mod paper;
+pub mod rng;
+
+use crate::gbuffer::GBuffer;
+use crate::projection::Projection;
+use serde::Serialize;
+
+/// Which per-view estimator computes the AO map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Estimator {
+    /// Eq. 3–5 of the paper (relative shading; an open floor reads below 1).
+    #[default]
+    Paper,
+}
+
+/// Parameters of one SSAO evaluation.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SsaoParams {
+    /// Estimator.
+    pub estimator: Estimator,
+    /// Sampling-sphere radius `r_s` (metres).
+    pub radius: f32,
+    /// Falloff distance `t_max` of ρ (metres).
+    pub tmax: f32,
+    /// Samples per pixel `|S|`.
+    pub samples: u32,
+    /// Seed of the per-pixel sample patterns.
+    pub seed: u64,
+    /// Apply the 5×5 Gaussian blur.
+    pub blur: bool,
+}
+
+/// An AO map of one view.
+#[derive(Debug, Clone, Default)]
+pub struct AoMap {
+    /// Per-pixel AO in [0,1] (1 where empty).
+    pub ao: Vec<f32>,
+    /// Per-pixel flag: a valid pixel none of whose samples was valid (AO left at 1).
+    pub no_sample: Vec<bool>,
+}
+
+/// `ρ(d) = smoothstep(0, t_max, d)`: `x = clamp(d/t_max, 0, 1)`, `x²(3 − 2x)`. A zero or
+/// negative `t_max` means every occluder is at full strength beyond distance 0.
+#[inline]
+pub fn rho(d: f32, tmax: f32) -> f32 {
+    if !(tmax > 0.0) {
+        return if d > 0.0 { 1.0 } else { 0.0 };
+    }
+    let x = (d / tmax).clamp(0.0, 1.0);
+    x * x * (3.0 - 2.0 * x)
+}
+
+/// Eq. 5: `w = 1 − max(n·(p_i − p)/‖p_i − p‖, 0)` for a sample at offset `v = p_i − p` of
+/// length `len > 0`.
+#[inline]
+pub fn visibility_weight(n: glam::Vec3, v: glam::Vec3, len: f32) -> f32 {
+    1.0 - (n.dot(v) / len).max(0.0)
+}
+
+/// Computes the AO map of a view with the chosen estimator, then blurs it.
+pub fn compute(g: &GBuffer, proj: &Projection, p: &SsaoParams) -> AoMap {
+    let mut map = match p.estimator {
+        Estimator::Paper => paper::ssao(g, proj, p),
+    };
+    if p.blur {
+        map.ao = blur::gaussian5(&map.ao, g, proj.wrap_x);
+    }
+    map
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    #[test]
+    fn rho_matches_hand_values() {
+        assert_eq!(rho(0.0, 0.4), 0.0);
+        assert_eq!(rho(0.4, 0.4), 1.0);
+        assert_eq!(rho(1.0, 0.4), 1.0);
+        // d = 0.1, t = 0.4: x = 0.25, x²(3−2x) = 0.0625·2.5 = 0.15625
+        assert!((rho(0.1, 0.4) - 0.15625).abs() < 1e-7);
+        // midpoint is exactly 0.5
+        assert!((rho(0.2, 0.4) - 0.5).abs() < 1e-7);
+        assert_eq!(rho(0.5, 0.0), 1.0);
+    }
+
+    #[test]
+    fn eq5_weight_matches_hand_values() {
+        let n = Vec3::Z;
+        // sample straight above: fully occluding direction → w = 0
+        assert_eq!(visibility_weight(n, Vec3::new(0.0, 0.0, 2.0), 2.0), 0.0);
+        // tangent sample → w = 1
+        assert_eq!(visibility_weight(n, Vec3::new(1.0, 0.0, 0.0), 1.0), 1.0);
+        // 45° above the tangent plane: 1 − cos45°
+        let v = Vec3::new(1.0, 0.0, 1.0);
+        let w = visibility_weight(n, v, v.length());
+        assert!((w - (1.0 - std::f32::consts::FRAC_1_SQRT_2)).abs() < 1e-6);
+        // below the plane → w = 1
+        assert_eq!(visibility_weight(n, Vec3::new(1.0, 0.0, -1.0), 2f32.sqrt()), 1.0);
+    }
+}

@@ -1,0 +1,211 @@
+//! Per-point normals (PCA over the 16 nearest neighbours, oriented towards the sensor) and
+//! radii `rad(p) = 2·sqrt(d_k²/k)` with `d_k` the distance to the k-th nearest neighbour
+//! (k = 32), from one k-d tree query per point.
+
+use glam::{DVec3, Vec3};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+use std::num::NonZeroUsize;
+
+/// Neighbours used for a PCA normal.
+pub const K_NORMAL: usize = 16;
+/// Neighbours used for the radius.
+pub const K_RADIUS: usize = 32;
+/// Smallest radius kept (metres): duplicate points have `d_k = 0`, and a zero radius would make
+/// the merge's radius ratio 0/0.
+pub const MIN_RADIUS: f32 = 1e-7;
+
+/// Radius from the distance to the k-th neighbour: `2·sqrt(d_k²/k)`.
+#[inline]
+pub fn radius_from_dk(dk: f32, k: usize) -> f32 {
+    (2.0 * (dk * dk / k.max(1) as f32).sqrt()).max(MIN_RADIUS)
+}
+
+/// Estimates radii, and normals when `need_normals`, for `points`. `toward(p)` is the unit
+/// direction from `p` to the sensor, used to orient normals (and as the normal where the
+/// neighbourhood is degenerate: duplicates, collinear points, fewer than 3 points).
+pub fn estimate<F>(points: &[Vec3], need_normals: bool, toward: F) -> (Option<Vec<Vec3>>, Vec<f32>)
+where
+    F: Fn(Vec3) -> Vec3 + Sync,
+{
+    let n = points.len();
+    if n == 0 {
+        return (need_normals.then(Vec::new), Vec::new());
+    }
+    let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
+    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&coords);
+    let k = K_RADIUS.max(K_NORMAL).min(n);
+    let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
+    let mut normals = if need_normals {
+        vec![Vec3::ZERO; n]
+    } else {
+        Vec::new()
+    };
+    let mut radii = vec![0.0f32; n];
+    const CHUNK: usize = 4096;
+    let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
+        let base = ci * CHUNK;
+        for (o, r) in rad.iter_mut().enumerate() {
+            let i = base + o;
+            let p = points[i];
+            let nb = tree.nearest_n::<SquaredEuclidean>(&coords[i], kq);
+            // Results are sorted by distance; the last is the k-th neighbour (self included,
+            // as the paper's "smallest sphere containing the k nearest points").
+            let dk = nb.last().map(|x| x.distance.max(0.0).sqrt()).unwrap_or(0.0);
+            *r = radius_from_dk(dk, k);
+            if !nrm.is_empty() {
+                let m = nb.len().min(K_NORMAL);
+                nrm[o] = pca_normal(nb[..m].iter().map(|x| points[x.item as usize]), toward(p));
+            }
+        }
+    };
+    if need_normals {
+        radii
+            .par_chunks_mut(CHUNK)
+            .zip(normals.par_chunks_mut(CHUNK))
+            .enumerate()
+            .for_each(work);
+    } else {
+        radii
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(ci, rad)| work((ci, (rad, &mut []))));
+    }
+    (need_normals.then_some(normals), radii)
+}
+
+/// The PCA normal of a neighbourhood (eigenvector of the smallest covariance eigenvalue),
+/// oriented so that `n·toward ≥ 0`. Degenerate neighbourhoods return `toward`.
+pub fn pca_normal(nb: impl Iterator<Item = Vec3> + Clone, toward: Vec3) -> Vec3 {
+    let (mut sum, mut cnt) = (DVec3::ZERO, 0usize);
+    for q in nb.clone() {
+        sum += q.as_dvec3();
+        cnt += 1;
+    }
+    let fallback = toward.normalize_or(Vec3::Z);
+    if cnt < 3 {
+        return fallback;
+    }
+    let c = sum / cnt as f64;
+    let mut cov = [[0.0f64; 3]; 3];
+    for q in nb {
+        let d = q.as_dvec3() - c;
+        let d = [d.x, d.y, d.z];
+        for i in 0..3 {
+            for j in 0..3 {
+                cov[i][j] += d[i] * d[j];
+            }
+        }
+    }
+    let (vals, vecs) = sym_eigen3(cov);
+    // vals ascending. Flat enough to define a plane only if the middle eigenvalue is clearly
+    // above zero (not collinear, not duplicates).
+    if !(vals[1] > 1e-12 * vals[2].max(f64::MIN_POSITIVE)) || vals[2] <= 0.0 {
+        return fallback;
+    }
+    let n = vecs[0].as_vec3().normalize_or(fallback);
+    if n.dot(toward) < 0.0 {
+        -n
+    } else {
+        n
+    }
+}
+
+/// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations: eigenvalues
+/// ascending and their unit eigenvectors.
+pub fn sym_eigen3(mut a: [[f64; 3]; 3]) -> ([f64; 3], [DVec3; 3]) {
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _ in 0..32 {
+        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
+        let scale = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
+        if off <= 1e-15 * scale || off == 0.0 {
+            break;
+        }
+        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
+            if a[p][q] == 0.0 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let t = if theta == 0.0 { 1.0 } else { t };
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            for k in 0..3 {
+                let akp = a[k][p];
+                let akq = a[k][q];
+                a[k][p] = c * akp - s * akq;
+                a[k][q] = s * akp + c * akq;
+            }
+            for k in 0..3 {
+                let apk = a[p][k];
+                let aqk = a[q][k];
+                a[p][k] = c * apk - s * aqk;
+                a[q][k] = s * apk + c * aqk;
+            }
+            for row in v.iter_mut() {
+                let vp = row[p];
+                let vq = row[q];
+                row[p] = c * vp - s * vq;
+                row[q] = s * vp + c * vq;
+            }
+        }
+    }
+    let mut idx = [0usize, 1, 2];
+    idx.sort_by(|&i, &j| a[i][i].total_cmp(&a[j][j]));
+    let vals = [a[idx[0]][idx[0]], a[idx[1]][idx[1]], a[idx[2]][idx[2]]];
+    let col = |c: usize| DVec3::new(v[0][c], v[1][c], v[2][c]);
+    (vals, [col(idx[0]), col(idx[1]), col(idx[2])])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn radius_formula_matches_hand_value() {
+        // d_k = 0.4, k = 32: 2·sqrt(0.16/32) = 2·0.0707107 = 0.1414214
+        assert!((radius_from_dk(0.4, 32) - 0.141_421_36).abs() < 1e-6);
+        assert_eq!(radius_from_dk(0.0, 32), MIN_RADIUS);
+    }
+
+    #[test]
+    fn eigen_of_diagonal_and_rotated() {
+        let (vals, vecs) = sym_eigen3([[3.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 2.0]]);
+        assert_eq!(vals, [1.0, 2.0, 3.0]);
+        assert!((vecs[0].y.abs() - 1.0).abs() < 1e-12);
+        // [[2,1,0],[1,2,0],[0,0,5]] has eigenvalues 1 (along (1,-1,0)), 3, 5.
+        let (vals, vecs) = sym_eigen3([[2.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 5.0]]);
+        assert!((vals[0] - 1.0).abs() < 1e-12 && (vals[1] - 3.0).abs() < 1e-12);
+        assert!((vecs[0].x + vecs[0].y).abs() < 1e-12);
+    }
+
+    #[test]
+    fn plane_normals_face_the_sensor() {
+        // A 20×20 grid on z = -1 seen from the origin: normals must be +z.
+        let pts: Vec<Vec3> = (0..400)
+            .map(|i| Vec3::new((i % 20) as f32 * 0.01, (i / 20) as f32 * 0.01, -1.0))
+            .collect();
+        let (n, r) = estimate(&pts, true, |p| (-p).normalize());
+        let n = n.unwrap();
+        assert!(n.iter().all(|v| (v.z - 1.0).abs() < 1e-5), "{:?}", &n[..3]);
+        // Interior point: 32 nearest on a 1 cm grid reach d_k = sqrt(0.01²·(3²+1)) ≈ 0.0316
+        // (within the ring at distances 3 and sqrt(10) grid steps).
+        let r_mid = r[10 * 20 + 10];
+        assert!(r_mid > 0.009 && r_mid < 0.013, "{r_mid}");
+    }
+
+    #[test]
+    fn degenerate_neighbourhoods_fall_back_to_sensor_direction() {
+        let dup = vec![Vec3::new(1.0, 0.0, 0.0); 40];
+        let (n, r) = estimate(&dup, true, |p| (-p).normalize());
+        assert!(n.unwrap().iter().all(|v| (*v - Vec3::NEG_X).length() < 1e-6));
+        assert!(r.iter().all(|&x| x == MIN_RADIUS));
+        let line: Vec<Vec3> = (0..40).map(|i| Vec3::new(i as f32, 0.0, 5.0)).collect();
+        let (n, _) = estimate(&line, true, |_| Vec3::Y);
+        assert!(n.unwrap().iter().all(|v| *v == Vec3::Y));
+        let two = vec![Vec3::ONE, Vec3::ZERO];
+        let (n, r) = estimate(&two, true, |_| Vec3::X);
+        assert_eq!(n.unwrap(), vec![Vec3::X, Vec3::X]);
+        assert!(r.iter().all(|x| x.is_finite() && *x > 0.0));
+    }
+}

@@ -1,0 +1,620 @@
+//! Choosing a scan's sensor model and map: fitted to the native grid when the scan has one
+//! (the grid stays the range map; the fit only places foreign points and sizes the SSAO disk),
+//! otherwise built from the point directions at about one pixel per point.
+
+use crate::error::{Error, Result};
+use crate::projection::{Model, Projection, SensorModel};
+use crate::scan::Scan;
+use glam::{DMat3, DMat4, DVec3, DVec4, Mat2, Vec2, Vec3};
+use serde::Serialize;
+use std::f64::consts::{PI, TAU};
+
+/// What the user asked for with `--projection`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ProjectionChoice {
+    /// Decide from the data (grid fit, or the spread of point directions).
+    #[default]
+    Auto,
+    /// Terrestrial laser scanner (azimuth × elevation).
+    Equirect,
+    /// Camera or triangulation scanner.
+    Perspective,
+    /// Linear-motion scanner.
+    Ortho,
+}
+
+/// A scan's sensor: its projection, how its own points map to pixels, and why it was chosen.
+#[derive(Debug, Clone)]
+pub struct SensorSetup {
+    /// The projection (model + map size).
+    pub projection: Projection,
+    /// Pixel of each valid point when the native grid is used as the map; `None` means the
+    /// points are placed by projecting them.
+    pub grid_pixels: Option<Vec<u32>>,
+    /// RMS distance (pixels) between the fitted projection and the native grid positions.
+    pub fit_rms_px: Option<f64>,
+    /// One sentence on what was chosen and why (goes into the report).
+    pub reason: String,
+}
+
+/// Largest map side (pixels) built from ungridded points.
+const MAX_SIDE: f64 = 16384.0;
+/// A grid fit worse than this (RMS pixels) is not used; the map is rebuilt from the points.
+const MAX_FIT_RMS: f64 = 3.0;
+/// Points used for fitting (a deterministic stride subsample beyond this).
+const FIT_SAMPLE: usize = 60_000;
+
+/// Chooses the sensor model and map for `scan`.
+pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
+    if scan.is_empty() {
+        return Err(Error::scan(&scan.name, "has no valid point"));
+    }
+    if let Some(grid) = &scan.grid {
+        let fits = fit_grid(scan, choice);
+        let best = fits
+            .into_iter()
+            .min_by(|a, b| a.score().total_cmp(&b.score()));
+        if let Some(fit) = best {
+            if fit.rms <= MAX_FIT_RMS {
+                let (w, h) = if fit.swap {
+                    (grid.rows, grid.cols)
+                } else {
+                    (grid.cols, grid.rows)
+                };
+                let pixels = grid
+                    .row
+                    .iter()
+                    .zip(&grid.col)
+                    .map(|(&r, &c)| {
+                        let (x, y) = if fit.swap { (r, c) } else { (c, r) };
+                        y * w + x
+                    })
+                    .collect();
+                let mut projection = fit.projection;
+                projection.width = w as usize;
+                projection.height = h as usize;
+                projection.wrap_x = is_full_circle(&projection);
+                let reason = format!(
+                    "native {}x{} grid fits the {} model within {:.2} px RMS{}",
+                    grid.cols,
+                    grid.rows,
+                    projection.sensor_model(),
+                    fit.rms,
+                    if choice == ProjectionChoice::Auto {
+                        " (best of the models tried)"
+                    } else {
+                        " (model given by --projection)"
+                    }
+                );
+                return Ok(SensorSetup {
+                    projection,
+                    grid_pixels: Some(pixels),
+                    fit_rms_px: Some(fit.rms),
+                    reason,
+                });
+            }
+        }
+    }
+    let (model, why) = match choice {
+        ProjectionChoice::Auto => auto_model(&scan.points),
+        ProjectionChoice::Equirect => (SensorModel::Equirect, "given by --projection".to_string()),
+        ProjectionChoice::Perspective => {
+            (SensorModel::Perspective, "given by --projection".to_string())
+        }
+        ProjectionChoice::Ortho => (SensorModel::Ortho, "given by --projection".to_string()),
+    };
+    let projection = from_points(&scan.points, model)
+        .ok_or_else(|| Error::scan(&scan.name, format!("no {model} map fits its points")))?;
+    let gridnote = if scan.grid.is_some() {
+        "native grid fits no model within 3 px, so it is resampled; "
+    } else {
+        ""
+    };
+    Ok(SensorSetup {
+        reason: format!(
+            "{gridnote}{model} map of {}x{} px at about one pixel per point: {why}",
+            projection.width, projection.height
+        ),
+        projection,
+        grid_pixels: None,
+        fit_rms_px: None,
+    })
+}
+
+/// True when an equirect map's width spans the whole circle (to half a pixel).
+fn is_full_circle(p: &Projection) -> bool {
+    match p.model {
+        Model::Equirect { sx, .. } => ((sx.abs() as f64) * TAU - p.width as f64).abs() < 0.5,
+        _ => false,
+    }
+}
+
+/// Every `step`-th point, so fits see at most [`FIT_SAMPLE`] points.
+fn sample_indices(n: usize) -> impl Iterator<Item = usize> {
+    let step = n.div_ceil(FIT_SAMPLE).max(1);
+    (0..n).step_by(step)
+}
+
+/// An orthonormal local → sensor rotation whose third row is `axis`.
+fn frame_with_axis(axis: DVec3) -> DMat3 {
+    let z = axis.normalize();
+    let helper = if z.z.abs() < 0.9 { DVec3::Z } else { DVec3::X };
+    let x = helper.cross(z).normalize();
+    let y = z.cross(x);
+    DMat3::from_cols(x, y, z).transpose()
+}
+
+/// A candidate fit of a projection to the native grid.
+struct Fit {
+    projection: Projection,
+    swap: bool,
+    rms: f64,
+    /// Preference among near-equal fits (simpler/more common models first).
+    rank: f64,
+}
+
+impl Fit {
+    fn score(&self) -> f64 {
+        self.rms * (1.0 + 0.1 * self.rank)
+    }
+}
+
+/// Least squares `y ≈ Σ c_k f_k` for small systems; `None` if singular.
+fn lstsq<const K: usize>(rows: &[([f64; K], f64)]) -> Option<[f64; K]> {
+    let mut ata = [[0.0f64; K]; K];
+    let mut atb = [0.0f64; K];
+    for (f, y) in rows {
+        for i in 0..K {
+            atb[i] += f[i] * y;
+            for j in 0..K {
+                ata[i][j] += f[i] * f[j];
+            }
+        }
+    }
+    // Tiny ridge so coplanar data (one wall) still solves; its effect is far below a pixel.
+    let tr: f64 = (0..K).map(|i| ata[i][i]).sum::<f64>() / K as f64;
+    for (i, row) in ata.iter_mut().enumerate() {
+        row[i] += 1e-12 * tr.max(1e-300);
+    }
+    solve(ata, atb)
+}
+
+/// Gaussian elimination with partial pivoting.
+fn solve<const K: usize>(mut a: [[f64; K]; K], mut b: [f64; K]) -> Option<[f64; K]> {
+    for c in 0..K {
+        let p = (c..K).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
+        if a[p][c].abs() < 1e-300 || !a[p][c].is_finite() {
+            return None;
+        }
+        a.swap(c, p);
+        b.swap(c, p);
+        for r in c + 1..K {
+            let f = a[r][c] / a[c][c];
+            for k in c..K {
+                a[r][k] -= f * a[c][k];
+            }
+            b[r] -= f * b[c];
+        }
+    }
+    let mut x = [0.0; K];
+    for c in (0..K).rev() {
+        let s: f64 = (c + 1..K).map(|k| a[c][k] * x[k]).sum();
+        x[c] = (b[c] - s) / a[c][c];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+fn rms_of(sq: f64, n: usize) -> f64 {
+    if n == 0 {
+        f64::INFINITY
+    } else {
+        (sq / n as f64).sqrt()
+    }
+}
+
+/// Fits the models allowed by `choice` to the scan's native grid.
+fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
+    let Some(grid) = &scan.grid else {
+        return Vec::new();
+    };
+    let idx: Vec<usize> = sample_indices(scan.len()).collect();
+    if idx.len() < 8 {
+        return Vec::new();
+    }
+    let pts: Vec<DVec3> = idx.iter().map(|&i| scan.points[i].as_dvec3()).collect();
+    let rc: Vec<(f64, f64)> = idx
+        .iter()
+        .map(|&i| (grid.row[i] as f64 + 0.5, grid.col[i] as f64 + 0.5))
+        .collect();
+    let mut fits = Vec::new();
+    let want = |m: ProjectionChoice| choice == ProjectionChoice::Auto || choice == m;
+    if want(ProjectionChoice::Equirect) {
+        for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+            fits.extend(fit_equirect(&pts, &rc, axis));
+        }
+    }
+    if want(ProjectionChoice::Perspective) {
+        let mean = pts.iter().map(|p| p.normalize_or_zero()).sum::<DVec3>();
+        let mut axes = vec![DVec3::X, DVec3::NEG_X, DVec3::Y, DVec3::NEG_Y, DVec3::Z, DVec3::NEG_Z];
+        if mean.length() > 1e-9 {
+            axes.push(mean.normalize());
+        }
+        for axis in axes {
+            fits.extend(fit_perspective(&pts, &rc, axis));
+        }
+    }
+    if want(ProjectionChoice::Ortho) {
+        fits.extend(fit_ortho(&pts, &rc));
+    }
+    fits
+}
+
+/// Equirect fit with pole `axis`: x from azimuth, y from elevation, each a 1-D linear map of
+/// row or column (both assignments tried).
+fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
+    let rot = frame_with_axis(axis);
+    let ang: Vec<(f64, f64)> = pts
+        .iter()
+        .map(|p| {
+            let s = rot * *p;
+            (s.y.atan2(s.x), s.z.atan2(s.x.hypot(s.y)))
+        })
+        .collect();
+    let az_ref = seam_opposite(ang.iter().map(|a| a.0));
+    let mut out = Vec::new();
+    for swap in [false, true] {
+        let mut ax = Vec::with_capacity(ang.len());
+        let mut ay = Vec::with_capacity(ang.len());
+        for ((az, el), &(r, c)) in ang.iter().zip(rc) {
+            let (px, py) = if swap { (r, c) } else { (c, r) };
+            ax.push(([wrap_pi(az - az_ref), 1.0], px));
+            ay.push(([*el, 1.0], py));
+        }
+        let (Some(fx), Some(fy)) = (lstsq(&ax), lstsq(&ay)) else {
+            continue;
+        };
+        let sq: f64 = ax
+            .iter()
+            .zip(&ay)
+            .map(|((f, x), (g, y))| (fx[0] * f[0] + fx[1] - x).powi(2) + (fy[0] * g[0] + fy[1] - y).powi(2))
+            .sum();
+        let rms = rms_of(sq, ax.len());
+        out.push(Fit {
+            projection: Projection {
+                model: Model::Equirect {
+                    rot: rot.as_mat3(),
+                    az_ref: az_ref as f32,
+                    sx: fx[0] as f32,
+                    ox: fx[1] as f32,
+                    sy: fy[0] as f32,
+                    oy: fy[1] as f32,
+                },
+                width: 0,
+                height: 0,
+                wrap_x: false,
+            },
+            swap,
+            rms,
+            rank: 0.0,
+        });
+    }
+    out
+}
+
+/// Perspective fit looking along `axis`: pixel = 2×2 affine of (X/Z, Y/Z) plus offset.
+fn fit_perspective(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Option<Fit> {
+    let rot = frame_with_axis(axis);
+    let mut ax = Vec::with_capacity(pts.len());
+    let mut ay = Vec::with_capacity(pts.len());
+    for (p, &(r, c)) in pts.iter().zip(rc) {
+        let s = rot * *p;
+        if s.z <= 0.05 * s.length() {
+            return None; // not all points in front of this camera
+        }
+        let f = [s.x / s.z, s.y / s.z, 1.0];
+        ax.push((f, c));
+        ay.push((f, r));
+    }
+    let fx = lstsq(&ax)?;
+    let fy = lstsq(&ay)?;
+    let sq: f64 = ax
+        .iter()
+        .zip(&ay)
+        .map(|((f, x), (_, y))| {
+            (fx[0] * f[0] + fx[1] * f[1] + fx[2] - x).powi(2)
+                + (fy[0] * f[0] + fy[1] * f[1] + fy[2] - y).powi(2)
+        })
+        .sum();
+    Some(Fit {
+        projection: Projection {
+            model: Model::Perspective {
+                rot: rot.as_mat3(),
+                a: Mat2::from_cols(
+                    Vec2::new(fx[0] as f32, fy[0] as f32),
+                    Vec2::new(fx[1] as f32, fy[1] as f32),
+                ),
+                c: Vec2::new(fx[2] as f32, fy[2] as f32),
+            },
+            width: 0,
+            height: 0,
+            wrap_x: false,
+        },
+        swap: false,
+        rms: rms_of(sq, ax.len()),
+        rank: 1.0,
+    })
+}
+
+/// Orthographic fit: each pixel coordinate an affine function of the 3-D point.
+fn fit_ortho(pts: &[DVec3], rc: &[(f64, f64)]) -> Option<Fit> {
+    let ax: Vec<([f64; 4], f64)> = pts
+        .iter()
+        .zip(rc)
+        .map(|(p, &(_, c))| ([p.x, p.y, p.z, 1.0], c))
+        .collect();
+    let ay: Vec<([f64; 4], f64)> = pts
+        .iter()
+        .zip(rc)
+        .map(|(p, &(r, _))| ([p.x, p.y, p.z, 1.0], r))
+        .collect();
+    let fx = lstsq(&ax)?;
+    let fy = lstsq(&ay)?;
+    let a = DVec3::new(fx[0], fx[1], fx[2]);
+    let b = DVec3::new(fy[0], fy[1], fy[2]);
+    let toward = orient_toward(a.cross(b))?;
+    let sq: f64 = ax
+        .iter()
+        .zip(&ay)
+        .map(|((f, x), (_, y))| {
+            let p = DVec3::new(f[0], f[1], f[2]);
+            (a.dot(p) + fx[3] - x).powi(2) + (b.dot(p) + fy[3] - y).powi(2)
+        })
+        .sum();
+    let depth0 = pts.iter().map(|p| toward.dot(*p)).fold(f64::MIN, f64::max);
+    Some(Fit {
+        projection: Projection {
+            model: Model::Ortho {
+                a: a.as_vec3(),
+                a0: fx[3] as f32,
+                b: b.as_vec3(),
+                b0: fy[3] as f32,
+                toward: toward.as_vec3(),
+                depth0: depth0 as f32,
+            },
+            width: 0,
+            height: 0,
+            wrap_x: false,
+        },
+        swap: false,
+        rms: rms_of(sq, ax.len()),
+        rank: 2.0,
+    })
+}
+
+/// Unit view axis pointing to the sensor side: by convention an orthographic sensor looks
+/// along −z of its local frame (sensor on the +z side), falling back to +y, then +x.
+fn orient_toward(v: DVec3) -> Option<DVec3> {
+    let v = v.try_normalize()?;
+    for e in [DVec3::Z, DVec3::Y, DVec3::X] {
+        let d = v.dot(e);
+        if d.abs() > 1e-6 {
+            return Some(if d > 0.0 { v } else { -v });
+        }
+    }
+    Some(v)
+}
+
+/// Wraps an angle into (-π, π] in f64.
+fn wrap_pi(a: f64) -> f64 {
+    let mut r = a % TAU;
+    if r > PI {
+        r -= TAU;
+    } else if r <= -PI {
+        r += TAU;
+    }
+    r
+}
+
+/// The azimuth opposite the largest gap in `az` (so the map's seam falls where no data is).
+fn seam_opposite(az: impl Iterator<Item = f64>) -> f64 {
+    const BINS: usize = 1440;
+    let mut hist = [false; BINS];
+    for a in az {
+        if a.is_finite() {
+            let k = (((a + PI) / TAU) * BINS as f64) as usize;
+            hist[k.min(BINS - 1)] = true;
+        }
+    }
+    // Longest circular run of empty bins.
+    let (mut best_len, mut best_start) = (0usize, 0usize);
+    let mut run = 0usize;
+    for k in 0..2 * BINS {
+        if !hist[k % BINS] {
+            run += 1;
+            if run > best_len && run <= BINS {
+                best_len = run;
+                best_start = k + 1 - run;
+            }
+        } else {
+            run = 0;
+        }
+    }
+    if best_len == 0 {
+        return 0.0; // full circle: any seam
+    }
+    let mid = (best_start as f64 + best_len as f64 / 2.0) / BINS as f64 * TAU - PI;
+    wrap_pi(mid + PI)
+}
+
+/// Chooses equirect or perspective for an ungridded scan from the spread of its point
+/// directions around the origin.
+fn auto_model(points: &[Vec3]) -> (SensorModel, String) {
+    let idx: Vec<usize> = sample_indices(points.len()).collect();
+    let dirs: Vec<DVec3> = idx
+        .iter()
+        .filter_map(|&i| points[i].as_dvec3().try_normalize())
+        .collect();
+    let mean = dirs.iter().sum::<DVec3>();
+    let Some(m) = mean.try_normalize() else {
+        return (
+            SensorModel::Equirect,
+            "no grid; point directions surround the origin".into(),
+        );
+    };
+    let mut ang: Vec<f64> = dirs.iter().map(|d| d.dot(m).clamp(-1.0, 1.0).acos()).collect();
+    ang.sort_by(f64::total_cmp);
+    let q = ang[((ang.len() as f64 * 0.99) as usize).min(ang.len() - 1)].to_degrees();
+    if q <= 60.0 {
+        (
+            SensorModel::Perspective,
+            format!("no grid; 99 % of point directions lie within {q:.0}° of their mean, a camera cone"),
+        )
+    } else {
+        (
+            SensorModel::Equirect,
+            format!("no grid; point directions spread {q:.0}° from their mean, wider than a camera (60°)"),
+        )
+    }
+}
+
+/// Angular (or linear) step so that the occupied part of the map has about one pixel per
+/// point: occupancy counted on coarse bins of the 2-D coordinates `uv` (with cell weights).
+fn step_from_occupancy(uv: &[(f64, f64, f64)], n: usize, lo: (f64, f64), hi: (f64, f64)) -> f64 {
+    let span = ((hi.0 - lo.0).max(1e-12), (hi.1 - lo.1).max(1e-12));
+    // Aim at ~16 sample points per occupied bin.
+    let nb = ((uv.len() as f64 / 16.0).sqrt().clamp(4.0, 512.0)) as usize;
+    let mut occ = vec![0.0f64; nb * nb];
+    for &(u, v, w) in uv {
+        let i = (((u - lo.0) / span.0 * nb as f64) as usize).min(nb - 1);
+        let j = (((v - lo.1) / span.1 * nb as f64) as usize).min(nb - 1);
+        occ[j * nb + i] = w;
+    }
+    let cell = span.0 / nb as f64 * span.1 / nb as f64;
+    let area: f64 = occ.iter().sum::<f64>() * cell;
+    (area / n.max(1) as f64).sqrt()
+}
+
+/// Builds a map of the given model from ungridded points (about one pixel per point).
+pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
+    let idx: Vec<usize> = sample_indices(points.len()).collect();
+    let pts: Vec<DVec3> = idx
+        .iter()
+        .map(|&i| points[i].as_dvec3())
+        .filter(|p| p.length() > 0.0)
+        .collect();
+    if pts.is_empty() {
+        return None;
+    }
+    let n = points.len();
+    match model {
+        SensorModel::Equirect => {
+            let rot = DMat3::IDENTITY;
+            let az_ref = seam_opposite(pts.iter().map(|p| p.y.atan2(p.x)));
+            let ae: Vec<(f64, f64, f64)> = pts
+                .iter()
+                .map(|p| {
+                    let el = p.z.atan2(p.x.hypot(p.y));
+                    (wrap_pi(p.y.atan2(p.x) - az_ref), el, el.cos())
+                })
+                .collect();
+            let (lo, hi) = bounds2(&ae);
+            let step = step_from_occupancy(&ae, n, lo, hi)
+                .max((hi.0 - lo.0) / MAX_SIDE)
+                .max((hi.1 - lo.1) / (MAX_SIDE / 2.0))
+                .max(1e-6);
+            let full = hi.0 - lo.0 > TAU - 3.0 * step.max(TAU / 720.0);
+            let (width, ox) = if full {
+                let w = (TAU / step).ceil();
+                (w, w / 2.0)
+            } else {
+                ((hi.0 - lo.0) / step + 1.0, -lo.0 / step + 0.5)
+            };
+            let height = (hi.1 - lo.1) / step + 1.0;
+            Some(Projection {
+                model: Model::Equirect {
+                    rot: rot.as_mat3(),
+                    az_ref: az_ref as f32,
+                    sx: (if full { width / TAU } else { 1.0 / step }) as f32,
+                    ox: ox as f32,
+                    sy: (-1.0 / step) as f32,
+                    oy: (hi.1 / step + 0.5) as f32,
+                },
+                width: width.ceil() as usize,
+                height: height.ceil() as usize,
+                wrap_x: full,
+            })
+        }
+        SensorModel::Perspective => {
+            let axis = pts.iter().map(|p| p.normalize()).sum::<DVec3>().try_normalize()?;
+            let rot = frame_with_axis(axis);
+            let uv: Vec<(f64, f64, f64)> = pts
+                .iter()
+                .filter_map(|p| {
+                    let s = rot * *p;
+                    (s.z > 0.0).then(|| (s.x / s.z, s.y / s.z, 1.0))
+                })
+                .collect();
+            if uv.is_empty() {
+                return None;
+            }
+            let (lo, hi) = bounds2(&uv);
+            let step = step_from_occupancy(&uv, n, lo, hi)
+                .max((hi.0 - lo.0) / MAX_SIDE)
+                .max((hi.1 - lo.1) / MAX_SIDE)
+                .max(1e-9);
+            Some(Projection {
+                model: Model::Perspective {
+                    rot: rot.as_mat3(),
+                    a: Mat2::from_diagonal(Vec2::splat((1.0 / step) as f32)),
+                    c: Vec2::new((-lo.0 / step + 0.5) as f32, (-lo.1 / step + 0.5) as f32),
+                },
+                width: ((hi.0 - lo.0) / step + 1.0).ceil() as usize,
+                height: ((hi.1 - lo.1) / step + 1.0).ceil() as usize,
+                wrap_x: false,
+            })
+        }
+        SensorModel::Ortho => {
+            let xy: Vec<(f64, f64, f64)> = points
+                .iter()
+                .step_by(n.div_ceil(FIT_SAMPLE).max(1))
+                .map(|p| (p.x as f64, -(p.y as f64), 1.0))
+                .collect();
+            let (lo, hi) = bounds2(&xy);
+            let step = step_from_occupancy(&xy, n, lo, hi)
+                .max((hi.0 - lo.0) / MAX_SIDE)
+                .max((hi.1 - lo.1) / MAX_SIDE)
+                .max(1e-9);
+            let depth0 = points.iter().map(|p| p.z).fold(f32::MIN, f32::max);
+            Some(Projection {
+                model: Model::Ortho {
+                    a: Vec3::new((1.0 / step) as f32, 0.0, 0.0),
+                    a0: (-lo.0 / step + 0.5) as f32,
+                    b: Vec3::new(0.0, (-1.0 / step) as f32, 0.0),
+                    b0: (-lo.1 / step + 0.5) as f32,
+                    toward: Vec3::Z,
+                    depth0,
+                },
+                width: ((hi.0 - lo.0) / step + 1.0).ceil() as usize,
+                height: ((hi.1 - lo.1) / step + 1.0).ceil() as usize,
+                wrap_x: false,
+            })
+        }
+    }
+}
+
+fn bounds2(v: &[(f64, f64, f64)]) -> ((f64, f64), (f64, f64)) {
+    let mut lo = (f64::INFINITY, f64::INFINITY);
+    let mut hi = (f64::NEG_INFINITY, f64::NEG_INFINITY);
+    for &(a, b, _) in v {
+        lo = (lo.0.min(a), lo.1.min(b));
+        hi = (hi.0.max(a), hi.1.max(b));
+    }
+    (lo, hi)
+}
+
+/// The sensor of a local projection seen from another scan: the homogeneous sensor point
+/// transformed by `rel` (local of this scan → local of the other).
+pub fn sensor_in(rel: &DMat4, p: &Projection) -> DVec4 {
+    *rel * p.sensor_homogeneous().as_dvec4()
+}
