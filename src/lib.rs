@@ -10,6 +10,7 @@
 //! views → [`pipeline`] orders all of it and [`report`] records what happened.
 #![deny(missing_docs)]
 
+pub mod cli;
 pub mod error;
 pub mod gbuffer;
 pub mod io;

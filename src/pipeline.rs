@@ -1,1 +1,721 @@
-//! pipeline
+//! Orders the stages: read scans and poses → per scan sensor model, normals and radii,
+//! G-buffer, SSAO and border field → merge every scan against all views → write results and
+//! the report. Owns progress bars and timings; has no math of its own.
+
+use crate::error::{Error, Result};
+use crate::gbuffer::{self, GBuffer, EMPTY};
+use crate::io::output::{write_preview, write_result_ply, ColorMode};
+use crate::io::ply::PlyFile;
+use crate::io::{align, scan_ply};
+use crate::merge::{self, MergeParams, MergeStats, View};
+use crate::projection::Projection;
+use crate::report::{Parameters, Report, ScanReport, Totals};
+use crate::scan::{normals, Scan};
+use crate::sensor::{self, ProjectionChoice, SensorSetup};
+use crate::ssao::{self, AoMap, Estimator, SsaoParams};
+use glam::{DVec3, Vec3};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Everything `mvao merge` needs, validated (see the CLI for meanings and units).
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Input scans.
+    pub scans: Vec<PathBuf>,
+    /// Alignment file; `None` looks for exactly one beside the scans.
+    pub align: Option<PathBuf>,
+    /// Output directory.
+    pub out_dir: PathBuf,
+    /// SSAO sphere radius `r_s` (metres); `None` = scene diagonal / 50.
+    pub radius: Option<f32>,
+    /// `t_max` (metres); `None` = 2·radius.
+    pub tmax: Option<f32>,
+    /// Samples per pixel.
+    pub samples: u32,
+    /// N of the N×N merge neighbourhood.
+    pub neighbors: u32,
+    /// `d_min` (metres); `None` = smallest depth over all scans.
+    pub dmin: Option<f32>,
+    /// `d_max` (metres); `None` = largest depth over all scans.
+    pub dmax: Option<f32>,
+    /// `t_p` (pixels).
+    pub border_px: f32,
+    /// Gamma of grey colours and previews.
+    pub gamma: f32,
+    /// Random seed.
+    pub seed: u64,
+    /// Sensor model choice.
+    pub projection: ProjectionChoice,
+    /// Per-view estimator.
+    pub estimator: Estimator,
+    /// Write single-view SSAO instead of the merge.
+    pub ssao_only: bool,
+    /// What happens to input colours.
+    pub color: ColorMode,
+    /// Blur the SSAO maps (5×5 Gaussian).
+    pub blur: bool,
+    /// No progress bars.
+    pub quiet: bool,
+    /// Write a PNG preview per scan.
+    pub preview: bool,
+    /// Overwrite existing outputs.
+    pub force: bool,
+}
+
+/// Parameters of the in-memory computation (no files).
+#[derive(Debug, Clone)]
+pub struct ComputeParams {
+    /// SSAO radius; `None` = scene diagonal / 50.
+    pub radius: Option<f32>,
+    /// t_max; `None` = 2·radius.
+    pub tmax: Option<f32>,
+    /// Samples per pixel.
+    pub samples: u32,
+    /// Merge neighbourhood N.
+    pub neighbors: u32,
+    /// d_min override.
+    pub dmin: Option<f32>,
+    /// d_max override.
+    pub dmax: Option<f32>,
+    /// t_p.
+    pub border_px: f32,
+    /// Seed.
+    pub seed: u64,
+    /// Sensor model choice.
+    pub projection: ProjectionChoice,
+    /// Estimator.
+    pub estimator: Estimator,
+    /// Blur SSAO maps.
+    pub blur: bool,
+    /// Skip the merge (MVAO = own SSAO).
+    pub ssao_only: bool,
+}
+
+impl Default for ComputeParams {
+    fn default() -> Self {
+        ComputeParams {
+            radius: None,
+            tmax: None,
+            samples: 32,
+            neighbors: 1,
+            dmin: None,
+            dmax: None,
+            border_px: 64.0,
+            seed: 0,
+            projection: ProjectionChoice::Auto,
+            estimator: Estimator::Paper,
+            blur: true,
+            ssao_only: false,
+        }
+    }
+}
+
+/// One scan after the per-view stages.
+#[derive(Debug, Clone)]
+pub struct PreparedView {
+    /// Sensor model and map.
+    pub sensor: SensorSetup,
+    /// The G-buffer.
+    pub gbuf: GBuffer,
+    /// SSAO map (blurred).
+    pub ssao: AoMap,
+    /// Distance (pixels) to the nearest depth discontinuity.
+    pub border: Vec<f32>,
+    /// Radius of each point.
+    pub radii: Vec<f32>,
+    /// Pixel of each point ([`EMPTY`] if outside the map).
+    pub pixel: Vec<u32>,
+    /// Depth of each point.
+    pub depth: Vec<f32>,
+    /// Normals: "input", "estimated", "input, N re-estimated".
+    pub normals_note: String,
+}
+
+impl PreparedView {
+    /// Each point's SSAO (its pixel's value; 1 for a point outside the map) and whether it
+    /// had no valid sample.
+    pub fn point_ssao(&self) -> (Vec<f32>, u64) {
+        let mut none = 0u64;
+        let v = self
+            .pixel
+            .iter()
+            .map(|&px| {
+                if px == EMPTY {
+                    none += 1;
+                    1.0
+                } else {
+                    if self.ssao.no_sample[px as usize] {
+                        none += 1;
+                    }
+                    self.ssao.ao[px as usize]
+                }
+            })
+            .collect();
+        (v, none)
+    }
+}
+
+/// Result of the in-memory computation for one scan.
+#[derive(Debug, Clone)]
+pub struct ScanResult {
+    /// The per-view products.
+    pub view: PreparedView,
+    /// Single-view SSAO per point.
+    pub ssao: Vec<f32>,
+    /// Final AO per point (MVAO, or SSAO with `ssao_only`).
+    pub ao: Vec<f32>,
+    /// Points with no valid SSAO sample.
+    pub no_sample: u64,
+    /// Merge counters.
+    pub merge: MergeStats,
+}
+
+/// The output of [`compute`].
+#[derive(Debug, Clone)]
+pub struct Computed {
+    /// Per scan, input order.
+    pub scans: Vec<ScanResult>,
+    /// SSAO parameters used.
+    pub ssao: SsaoParams,
+    /// Merge parameters used.
+    pub merge: MergeParams,
+    /// How the defaults were derived.
+    pub defaults_note: String,
+}
+
+/// Stage hooks: progress and timing, so the computation can run with or without bars.
+pub trait Observer: Sync {
+    /// A stage starts with `total` units of work.
+    fn stage(&self, _name: &str, _total: u64) {}
+    /// `n` more units are done.
+    fn advance(&self, _n: u64) {}
+    /// A stage ended after `secs` seconds.
+    fn done(&self, _name: &str, _secs: f64) {}
+}
+
+/// An observer that does nothing (tests, library use).
+pub struct Silent;
+impl Observer for Silent {}
+
+/// Robust scene diagonal: 1st–99th percentile box of a sample of world points.
+pub fn robust_diagonal(scans: &[Scan]) -> f64 {
+    let mut xs = [Vec::new(), Vec::new(), Vec::new()];
+    for s in scans {
+        let step = s.len().div_ceil(20_000).max(1);
+        for p in s.points.iter().step_by(step) {
+            let w = s.pose.transform_point3(p.as_dvec3());
+            for k in 0..3 {
+                xs[k].push(w[k]);
+            }
+        }
+    }
+    let mut ext = DVec3::ZERO;
+    for k in 0..3 {
+        let v = &mut xs[k];
+        if v.is_empty() {
+            return 0.0;
+        }
+        v.sort_by(f64::total_cmp);
+        let lo = v[(v.len() as f64 * 0.01) as usize];
+        let hi = v[((v.len() as f64 * 0.99) as usize).min(v.len() - 1)];
+        ext[k] = hi - lo;
+    }
+    ext.length()
+}
+
+/// Runs the per-view stages on one scan.
+pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> Result<PreparedView> {
+    let sensor = sensor::setup(scan, choice)?;
+    let proj: Projection = sensor.projection;
+    let invalid_normals = scan
+        .normals
+        .as_ref()
+        .map(|n| n.iter().filter(|v| *v == &Vec3::ZERO).count());
+    let need = invalid_normals.is_none_or(|k| k > 0);
+    let (est, radii) = normals::estimate(&scan.points, need, |p| proj.toward_sensor(p));
+    let (normals, note) = match (&scan.normals, est) {
+        (Some(given), Some(est)) => {
+            let n: Vec<Vec3> = given
+                .iter()
+                .zip(&est)
+                .zip(&scan.points)
+                .map(|((g, e), p)| if *g == Vec3::ZERO { *e } else { face(*g, proj.toward_sensor(*p)) })
+                .collect();
+            (n, format!("input, {} re-estimated", invalid_normals.unwrap_or(0)))
+        }
+        (Some(given), None) => (
+            given
+                .iter()
+                .zip(&scan.points)
+                .map(|(g, p)| face(*g, proj.toward_sensor(*p)))
+                .collect(),
+            "input".to_string(),
+        ),
+        (None, Some(est)) => (est, "estimated (PCA, k = 16)".to_string()),
+        (None, None) => (vec![Vec3::Z; scan.len()], "none".into()),
+    };
+    let (pixel, depth) = gbuffer::point_pixels(&scan.points, &proj, sensor.grid_pixels.as_deref());
+    let gbuf = gbuffer::rasterize(
+        proj.width,
+        proj.height,
+        &pixel,
+        &depth,
+        &scan.points,
+        &normals,
+        &radii,
+    );
+    let ssao = ssao::compute(&gbuf, &proj, prm);
+    let border = crate::merge::border::border_distance(&gbuf.depth, gbuf.width, gbuf.height, proj.wrap_x);
+    Ok(PreparedView {
+        sensor,
+        gbuf,
+        ssao,
+        border,
+        radii,
+        pixel,
+        depth,
+        normals_note: note,
+    })
+}
+
+/// Flips `n` to face the sensor direction `t`.
+fn face(n: Vec3, t: Vec3) -> Vec3 {
+    if n.dot(t) < 0.0 {
+        -n
+    } else {
+        n
+    }
+}
+
+/// The whole computation on in-memory scans (poses set): per-view stages, then the merge.
+pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Result<Computed> {
+    if scans.is_empty() {
+        return Err(Error::Param("no scan given".into()));
+    }
+    let diag = robust_diagonal(scans);
+    let mut note = String::new();
+    let radius = match prm.radius {
+        Some(r) => r,
+        None => {
+            let r = (diag / 50.0) as f32;
+            note += &format!("radius = scene diagonal {diag:.4} m / 50 = {r:.4} m; ");
+            r
+        }
+    };
+    let tmax = match prm.tmax {
+        Some(t) => t,
+        None => {
+            note += "tmax = 2 × radius; ";
+            2.0 * radius
+        }
+    };
+    if !(radius > 0.0 && radius.is_finite()) {
+        return Err(Error::Param(format!(
+            "the SSAO radius must be a positive number of metres (got {radius}); give --radius"
+        )));
+    }
+    let sp = SsaoParams {
+        estimator: prm.estimator,
+        radius,
+        tmax,
+        samples: prm.samples,
+        seed: prm.seed,
+        blur: prm.blur,
+    };
+    let total: u64 = scans.iter().map(|s| s.len() as u64).sum();
+    obs.stage("prepare", total);
+    let t0 = Instant::now();
+    let mut views = Vec::with_capacity(scans.len());
+    for s in scans {
+        views.push(prepare_view(s, prm.projection, &sp)?);
+        obs.advance(s.len() as u64);
+    }
+    obs.done("prepare", t0.elapsed().as_secs_f64());
+
+    let (mut dmin, mut dmax) = (f32::INFINITY, 0.0f32);
+    for v in &views {
+        for &d in &v.depth {
+            if d.is_finite() {
+                dmin = dmin.min(d);
+                dmax = dmax.max(d);
+            }
+        }
+    }
+    if !dmin.is_finite() {
+        dmin = 0.0;
+    }
+    let mp = MergeParams {
+        neighbors: prm.neighbors,
+        dmin: prm.dmin.unwrap_or(dmin),
+        dmax: prm.dmax.unwrap_or(dmax),
+        border_px: prm.border_px,
+    };
+    if prm.dmin.is_none() || prm.dmax.is_none() {
+        note += "dmin/dmax = smallest/largest depth over all scans";
+    }
+
+    let bounds: Vec<(DVec3, DVec3)> = scans.iter().map(world_bounds).collect();
+    let mv: Vec<View> = views
+        .iter()
+        .zip(scans)
+        .map(|(v, s)| View {
+            proj: &v.sensor.projection,
+            gbuf: &v.gbuf,
+            ao: &v.ssao.ao,
+            border: &v.border,
+            pose: s.pose,
+        })
+        .collect();
+    obs.stage("merge", if prm.ssao_only { 0 } else { total });
+    let t0 = Instant::now();
+    let mut results = Vec::with_capacity(scans.len());
+    for (i, (s, v)) in scans.iter().zip(&views).enumerate() {
+        let (own, no_sample) = v.point_ssao();
+        let (ao, st) = if prm.ssao_only {
+            (own.clone(), MergeStats::default())
+        } else {
+            let margin = (2.0 * tmax as f64).max(1e-9);
+            let skip: Vec<bool> = bounds
+                .iter()
+                .map(|b| !overlaps(&bounds[i], b, margin))
+                .collect();
+            let r = merge::merge_scan(i, &s.points, &v.radii, &own, &mv, &skip, &mp);
+            obs.advance(s.len() as u64);
+            r
+        };
+        results.push((own, ao, no_sample, st));
+    }
+    obs.done("merge", t0.elapsed().as_secs_f64());
+    let scans_out = views
+        .into_iter()
+        .zip(results)
+        .map(|(view, (ssao, ao, no_sample, merge))| ScanResult {
+            view,
+            ssao,
+            ao,
+            no_sample,
+            merge,
+        })
+        .collect();
+    Ok(Computed {
+        scans: scans_out,
+        ssao: sp,
+        merge: mp,
+        defaults_note: note,
+    })
+}
+
+/// World-space bounding box of a scan.
+fn world_bounds(s: &Scan) -> (DVec3, DVec3) {
+    let (lo, hi) = s.points.par_iter().fold(
+        || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    ).reduce(
+        || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |a, b| (a.0.min(b.0), a.1.max(b.1)),
+    );
+    if !lo.is_finite() {
+        return (DVec3::ZERO, DVec3::ZERO);
+    }
+    let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
+    let mut wlo = DVec3::splat(f64::INFINITY);
+    let mut whi = DVec3::splat(f64::NEG_INFINITY);
+    for k in 0..8 {
+        let c = DVec3::new(
+            if k & 1 == 0 { lo.x } else { hi.x },
+            if k & 2 == 0 { lo.y } else { hi.y },
+            if k & 4 == 0 { lo.z } else { hi.z },
+        );
+        let w = s.pose.transform_point3(c);
+        wlo = wlo.min(w);
+        whi = whi.max(w);
+    }
+    (wlo, whi)
+}
+
+/// True when two boxes, grown by `margin`, intersect.
+fn overlaps(a: &(DVec3, DVec3), b: &(DVec3, DVec3), margin: f64) -> bool {
+    (a.0 - margin).cmple(b.1).all() && (b.0 - margin).cmple(a.1).all()
+}
+
+/// Progress bars on stderr (one per stage), silent with `-q` or when stderr is not a terminal.
+struct Bars {
+    quiet: bool,
+    bar: std::sync::Mutex<Option<ProgressBar>>,
+}
+
+impl Observer for Bars {
+    fn stage(&self, name: &str, total: u64) {
+        if self.quiet {
+            return;
+        }
+        let pb = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
+        pb.set_style(
+            ProgressStyle::with_template("{prefix:>8} [{bar:40}] {human_pos}/{human_len} points {elapsed_precise} ETA {eta}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        pb.set_prefix(name.to_string());
+        if let Ok(mut b) = self.bar.lock() {
+            *b = Some(pb);
+        }
+    }
+    fn advance(&self, n: u64) {
+        if let Ok(b) = self.bar.lock() {
+            if let Some(pb) = b.as_ref() {
+                pb.inc(n);
+            }
+        }
+    }
+    fn done(&self, _name: &str, _secs: f64) {
+        if let Ok(mut b) = self.bar.lock() {
+            if let Some(pb) = b.take() {
+                pb.finish();
+            }
+        }
+    }
+}
+
+/// Output file of a scan: `OUTDIR/<stem>.mvao.ply`.
+pub fn output_path(out_dir: &Path, stem: &str) -> PathBuf {
+    out_dir.join(format!("{stem}.mvao.ply"))
+}
+
+/// `mvao merge`: reads, computes, writes. Returns the report (also written as `report.json`).
+pub fn run(cfg: &Config) -> Result<Report> {
+    let t_all = Instant::now();
+    let mut report = Report {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        ..Default::default()
+    };
+    let warn = |report: &mut Report, msg: String| {
+        eprintln!("warning: {msg}");
+        report.warnings.push(msg);
+    };
+    if cfg.scans.is_empty() {
+        return Err(Error::Param("no scan given".into()));
+    }
+    // Output names must be distinct and must not clobber anything without --force.
+    let stems: Vec<String> = cfg
+        .scans
+        .iter()
+        .map(|p| p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default())
+        .collect();
+    for (i, s) in stems.iter().enumerate() {
+        if let Some(j) = stems[..i].iter().position(|t| t == s) {
+            return Err(Error::Param(format!(
+                "{} and {} would both write {s}.mvao.ply; rename one or run them separately",
+                cfg.scans[j].display(),
+                cfg.scans[i].display()
+            )));
+        }
+    }
+    let mut outputs: Vec<PathBuf> = stems.iter().map(|s| output_path(&cfg.out_dir, s)).collect();
+    if cfg.preview {
+        outputs.extend(stems.iter().map(|s| cfg.out_dir.join(format!("{s}.png"))));
+    }
+    outputs.push(cfg.out_dir.join("report.json"));
+    for o in &outputs {
+        if cfg.scans.iter().any(|s| same_file(s, o)) {
+            return Err(Error::Param(format!("{}: output would overwrite an input", o.display())));
+        }
+        if o.exists() && !cfg.force {
+            return Err(Error::Param(format!(
+                "{}: exists; use --force to overwrite or choose another -o",
+                o.display()
+            )));
+        }
+    }
+
+    let obs = Bars {
+        quiet: cfg.quiet,
+        bar: std::sync::Mutex::new(None),
+    };
+    // Read scans.
+    let t0 = Instant::now();
+    obs.stage("read", cfg.scans.len() as u64);
+    let mut scans = Vec::with_capacity(cfg.scans.len());
+    let mut plys: Vec<PlyFile> = Vec::with_capacity(cfg.scans.len());
+    for p in &cfg.scans {
+        let (s, ply) = scan_ply::read_scan(p)?;
+        if s.skipped_nonfinite > 0 {
+            warn(
+                &mut report,
+                format!(
+                    "{}: {} vertices with non-finite coordinates skipped (not written)",
+                    p.display(),
+                    s.skipped_nonfinite
+                ),
+            );
+        }
+        scans.push(s);
+        plys.push(ply);
+        obs.advance(1);
+    }
+    obs.done("read", 0.0);
+    report.add_time("read", t0.elapsed().as_secs_f64());
+
+    // Poses.
+    let align_path = match &cfg.align {
+        Some(a) => Some(a.clone()),
+        None => align::find_alignment_beside(&cfg.scans)?,
+    };
+    if let Some(a) = &align_path {
+        let al = align::read_alignment(a)?;
+        let poses = align::poses_for_scans(&al, &cfg.scans)?;
+        for (s, m) in scans.iter_mut().zip(poses) {
+            s.pose = m;
+        }
+        report.alignment = Some(a.display().to_string());
+    } else if scans.len() > 1 {
+        warn(
+            &mut report,
+            "no alignment file given or found beside the scans: all scans are taken as already aligned".into(),
+        );
+    }
+    for s in &scans {
+        if s.is_empty() {
+            return Err(Error::scan(
+                s.path.as_ref().map(|p| p.display().to_string()).unwrap_or(s.name.clone()),
+                "has no vertex with finite coordinates",
+            ));
+        }
+    }
+
+    let prm = ComputeParams {
+        radius: cfg.radius,
+        tmax: cfg.tmax,
+        samples: cfg.samples,
+        neighbors: cfg.neighbors,
+        dmin: cfg.dmin,
+        dmax: cfg.dmax,
+        border_px: cfg.border_px,
+        seed: cfg.seed,
+        projection: cfg.projection,
+        estimator: cfg.estimator,
+        blur: cfg.blur,
+        ssao_only: cfg.ssao_only,
+    };
+    let t0 = Instant::now();
+    let computed = compute(&scans, &prm, &obs)?;
+    report.add_time("compute", t0.elapsed().as_secs_f64());
+    if !cfg.quiet {
+        eprintln!(
+            "radius {:.4} m, tmax {:.4} m, dmin {:.3} m, dmax {:.3} m ({})",
+            computed.ssao.radius,
+            computed.ssao.tmax,
+            computed.merge.dmin,
+            computed.merge.dmax,
+            if computed.defaults_note.is_empty() { "as given" } else { computed.defaults_note.as_str() }
+        );
+    }
+
+    std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
+    let t0 = Instant::now();
+    obs.stage("write", scans.len() as u64);
+    for ((s, ply), r) in scans.iter().zip(plys).zip(&computed.scans) {
+        let mut ao_v = vec![1.0f32; s.vertex_count];
+        for (k, &vi) in s.source_index.iter().enumerate() {
+            ao_v[vi as usize] = r.ao[k];
+        }
+        let ply = if s.skipped_nonfinite > 0 {
+            let mut keep = vec![false; s.vertex_count];
+            for &vi in &s.source_index {
+                keep[vi as usize] = true;
+            }
+            ao_v = s.source_index.iter().map(|&vi| ao_v[vi as usize]).collect();
+            drop_vertices(ply, &keep)?
+        } else {
+            ply
+        };
+        let out = output_path(&cfg.out_dir, &s.name);
+        let comment = format!(
+            "mvao {} {}: ao = {} (1 = open)",
+            env!("CARGO_PKG_VERSION"),
+            if cfg.ssao_only { "ssao-only" } else { "merge" },
+            match computed.ssao.estimator {
+                Estimator::Paper => "paper estimator",
+            }
+        );
+        write_result_ply(ply, &ao_v, cfg.gamma, cfg.color, &comment, &out)?;
+        if cfg.preview {
+            let g = &r.view.gbuf;
+            let vals: Vec<Option<f32>> = g
+                .point
+                .iter()
+                .map(|&p| (p != EMPTY).then(|| r.ao[p as usize]))
+                .collect();
+            write_preview(
+                &cfg.out_dir.join(format!("{}.png", s.name)),
+                g.width,
+                g.height,
+                &vals,
+                cfg.gamma,
+            )?;
+        }
+        let (mn, mx, sum) = r.ao.iter().fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
+            (a.0.min(v), a.1.max(v), a.2 + v as f64)
+        });
+        let proj = &r.view.sensor.projection;
+        report.scans.push(ScanReport {
+            name: s.name.clone(),
+            input: s.path.as_ref().map(|p| p.display().to_string()).unwrap_or_default(),
+            output: out.display().to_string(),
+            vertices: s.vertex_count,
+            points: s.len(),
+            skipped_nonfinite: s.skipped_nonfinite,
+            sensor_model: proj.sensor_model().to_string(),
+            map_size: [proj.width, proj.height],
+            map_filled: r.view.gbuf.filled(),
+            native_grid: r.view.sensor.grid_pixels.is_some(),
+            grid_fit_rms_px: r.view.sensor.fit_rms_px,
+            sensor_reason: r.view.sensor.reason.clone(),
+            normals: r.view.normals_note.clone(),
+            no_ssao_sample: r.no_sample,
+            zero_merge_weight: r.merge.zero_weight,
+            point_views: r.merge.point_views,
+            ao_min: mn,
+            ao_mean: (sum / s.len().max(1) as f64) as f32,
+            ao_max: mx,
+        });
+        obs.advance(1);
+    }
+    obs.done("write", 0.0);
+    report.add_time("write", t0.elapsed().as_secs_f64());
+    report.parameters = Parameters {
+        ssao: Some(computed.ssao),
+        merge: Some(computed.merge),
+        defaults_note: computed.defaults_note.clone(),
+        gamma: cfg.gamma,
+        color: format!("{:?}", cfg.color).to_lowercase(),
+        projection: format!("{:?}", cfg.projection).to_lowercase(),
+        ssao_only: cfg.ssao_only,
+    };
+    report.totals = Totals {
+        points: report.scans.iter().map(|s| s.points as u64).sum(),
+        no_ssao_sample: report.scans.iter().map(|s| s.no_ssao_sample).sum(),
+        zero_merge_weight: report.scans.iter().map(|s| s.zero_merge_weight).sum(),
+        wall_s: t_all.elapsed().as_secs_f64(),
+    };
+    let json = serde_json::to_vec_pretty(&report)
+        .map_err(|e| Error::Param(format!("cannot encode the report: {e}")))?;
+    let rp = cfg.out_dir.join("report.json");
+    crate::io::atomic::write_atomic(&rp, |w| std::io::Write::write_all(w, &json))?;
+    Ok(report)
+}
+
+/// True when two paths name the same existing file.
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+/// Removes the vertices not in `keep` (non-finite ones), remapping vertex references in other
+/// elements' index lists.
+fn drop_vertices(ply: PlyFile, keep: &[bool]) -> Result<PlyFile> {
+    ply.retain_vertices(keep)
+}

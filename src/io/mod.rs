@@ -1,6 +1,9 @@
-//! Reading scans and alignments from files, writing results. Bytes in, [`Scan`](crate::scan::Scan)s out;
-//! no normals, pixels or progress bars here.
+//! Reading scans and alignments from files, writing results. Bytes in, [`Scan`](crate::scan::Scan)s
+//! out; no normals, pixels or progress bars here.
 
 pub mod align;
 pub mod atomic;
+pub mod output;
 pub mod ply;
+mod ply_retain;
+pub mod scan_ply;

@@ -1,0 +1,142 @@
+//! Writing results: the input PLY with `float ao` and grey (or modulated) colours added, and a
+//! preview picture of the AO map as the scanner saw it. Every file is written atomically.
+
+use super::atomic::write_atomic;
+use super::ply::{PlyFile, ScalarType};
+use crate::error::{Error, Result};
+use serde::Serialize;
+use std::path::Path;
+
+/// What happens to an input's own colours.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ColorMode {
+    /// Input colour × AO grey.
+    #[default]
+    Modulate,
+    /// AO grey replaces the colour.
+    Replace,
+    /// Colours unchanged (AO only as the `ao` scalar).
+    Keep,
+}
+
+/// The grey level of an AO value: `255·ao^(1/γ)`, rounded.
+#[inline]
+pub fn grey(ao: f32, gamma: f32) -> u8 {
+    let g = if gamma > 0.0 && gamma != 1.0 {
+        ao.clamp(0.0, 1.0).powf(1.0 / gamma)
+    } else {
+        ao.clamp(0.0, 1.0)
+    };
+    (g * 255.0).round().clamp(0.0, 255.0) as u8
+}
+
+/// Writes `ply` with per-vertex `ao` (one value per vertex, all finite) and colours to `path`.
+pub fn write_result_ply(
+    mut ply: PlyFile,
+    ao: &[f32],
+    gamma: f32,
+    color: ColorMode,
+    comment: &str,
+    path: &Path,
+) -> Result<()> {
+    if ao.iter().any(|a| !a.is_finite()) {
+        return Err(Error::Param(format!(
+            "{}: refusing to write a non-finite ao value (internal error)",
+            path.display()
+        )));
+    }
+    let aof: Vec<f64> = ao.iter().map(|&a| a as f64).collect();
+    ply.set_scalar_column("vertex", "ao", ScalarType::F32, &aof)?;
+    let has_rgb = ["red", "green", "blue"]
+        .iter()
+        .all(|c| ply.has_property("vertex", c));
+    let greys: Vec<f64> = ao.iter().map(|&a| grey(a, gamma) as f64).collect();
+    for c in ["red", "green", "blue"] {
+        if has_rgb {
+            match color {
+                ColorMode::Keep => {}
+                ColorMode::Replace => ply.set_scalar_column("vertex", c, ScalarType::U8, &greys)?,
+                ColorMode::Modulate => {
+                    let orig = ply.scalar_column("vertex", c).unwrap_or_default();
+                    let m: Vec<f64> = orig
+                        .iter()
+                        .zip(&greys)
+                        .map(|(o, g)| o * g / 255.0)
+                        .collect();
+                    ply.set_scalar_column("vertex", c, ScalarType::U8, &m)?;
+                }
+            }
+        } else {
+            ply.set_scalar_column("vertex", c, ScalarType::U8, &greys)?;
+        }
+    }
+    ply.header.comments.push(comment.to_string());
+    ply.write_path(path)
+}
+
+/// Largest preview side; bigger maps are box-downsampled by an integer factor.
+const MAX_PREVIEW: usize = 8192;
+
+/// Writes a grey + alpha PNG of a `width × height` map (`None` = empty pixel, transparent).
+pub fn write_preview(
+    path: &Path,
+    width: usize,
+    height: usize,
+    values: &[Option<f32>],
+    gamma: f32,
+) -> Result<()> {
+    let f = width.max(height).div_ceil(MAX_PREVIEW).max(1);
+    let (w, h) = (width.div_ceil(f).max(1), height.div_ceil(f).max(1));
+    let mut buf = vec![0u8; w * h * 2];
+    for y in 0..h {
+        for x in 0..w {
+            let (mut s, mut n) = (0.0f32, 0u32);
+            for yy in y * f..((y + 1) * f).min(height) {
+                for xx in x * f..((x + 1) * f).min(width) {
+                    if let Some(v) = values[yy * width + xx] {
+                        s += v;
+                        n += 1;
+                    }
+                }
+            }
+            if n > 0 {
+                buf[(y * w + x) * 2] = grey(s / n as f32, gamma);
+                buf[(y * w + x) * 2 + 1] = 255;
+            }
+        }
+    }
+    write_atomic(path, |out| {
+        let mut enc = png::Encoder::new(out, w as u32, h as u32);
+        enc.set_color(png::ColorType::GrayscaleAlpha);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc.write_header().map_err(std::io::Error::other)?;
+        wr.write_image_data(&buf).map_err(std::io::Error::other)?;
+        wr.finish().map_err(std::io::Error::other)?;
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grey_levels() {
+        assert_eq!(grey(1.0, 1.0), 255);
+        assert_eq!(grey(0.0, 1.0), 0);
+        assert_eq!(grey(0.5, 1.0), 128);
+        // gamma 2: 0.25^(1/2) = 0.5
+        assert_eq!(grey(0.25, 2.0), 128);
+        assert_eq!(grey(f32::NAN.max(0.0), 1.0), 0);
+    }
+
+    #[test]
+    fn preview_is_a_png() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.png");
+        write_preview(&p, 3, 2, &[Some(1.0), None, Some(0.0), None, None, Some(0.5)], 1.0).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+    }
+}
