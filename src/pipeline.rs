@@ -228,7 +228,7 @@ pub fn robust_diagonal(scans: &[Scan]) -> f64 {
 /// Runs the per-view stages on one scan.
 pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> Result<PreparedView> {
     let sensor = sensor::setup(scan, choice)?;
-    let proj: Projection = sensor.projection;
+    let proj: Projection = sensor.projection.clone();
     let invalid_normals = scan
         .normals
         .as_ref()

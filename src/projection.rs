@@ -17,6 +17,7 @@
 
 use glam::{Mat2, Mat3, Vec2, Vec3, Vec4};
 use serde::Serialize;
+use std::sync::Arc;
 
 /// Which sensor model a scan uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -84,9 +85,59 @@ pub enum Model {
     },
 }
 
+/// A monotone piecewise-linear correction of one pixel axis: a native grid whose rows (or
+/// columns) were not taken at even angular steps (a scanner head turning at varying speed)
+/// is mapped exactly, where a single linear fit would be off by pixels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Warp {
+    /// `knots[k]` = the linear-model coordinate of grid index `k`'s centre, strictly increasing.
+    knots: Arc<[f32]>,
+}
+
+impl Warp {
+    /// A warp from strictly increasing knots; `None` if they are not (or fewer than 2).
+    pub fn new(knots: Vec<f32>) -> Option<Warp> {
+        let ok = knots.len() >= 2
+            && knots.iter().all(|k| k.is_finite())
+            && knots.windows(2).all(|w| w[1] > w[0]);
+        ok.then(|| Warp {
+            knots: knots.into(),
+        })
+    }
+
+    /// Linear-model coordinate → grid coordinate (pixel `k` spans `[k, k+1)`), extrapolating
+    /// with the end slopes.
+    #[inline]
+    pub fn apply(&self, u: f32) -> f32 {
+        let k = &self.knots;
+        let n = k.len();
+        let i = k.partition_point(|&v| v <= u).clamp(1, n - 1);
+        let (a, b) = (k[i - 1], k[i]);
+        (i - 1) as f32 + 0.5 + (u - a) / (b - a)
+    }
+
+    /// Grid pixels per linear-model unit around grid coordinate `x`.
+    #[inline]
+    pub fn slope_at(&self, x: f32) -> f32 {
+        let k = &self.knots;
+        let i = ((x - 0.5).floor().max(0.0) as usize).min(k.len() - 2);
+        1.0 / (k[i + 1] - k[i])
+    }
+
+    /// Grid coordinate → linear-model coordinate (inverse of [`apply`](Self::apply)).
+    #[inline]
+    pub fn invert(&self, x: f32) -> f32 {
+        let k = &self.knots;
+        let n = k.len();
+        let t = x - 0.5;
+        let i = (t.floor().max(0.0) as usize).min(n - 2);
+        k[i] + (t - i as f32) * (k[i + 1] - k[i])
+    }
+}
+
 /// A sensor model with its map size: everything needed to go between a scan's local points
 /// and its G-buffer pixels.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Projection {
     /// Parameters.
     pub model: Model,
@@ -96,6 +147,10 @@ pub struct Projection {
     pub height: usize,
     /// True when x wraps around (a full-circle equirectangular map).
     pub wrap_x: bool,
+    /// Optional correction of x after the model (native grids with uneven steps).
+    pub warp_x: Option<Warp>,
+    /// Optional correction of y after the model.
+    pub warp_y: Option<Warp>,
 }
 
 /// A projected point: continuous pixel coordinates and depth.
@@ -132,10 +187,35 @@ impl Projection {
         }
     }
 
+    /// A projection without warps.
+    pub fn new(model: Model, width: usize, height: usize, wrap_x: bool) -> Projection {
+        Projection {
+            model,
+            width,
+            height,
+            wrap_x,
+            warp_x: None,
+            warp_y: None,
+        }
+    }
+
     /// Projects a local point. `None` when the point has no image (at the sensor, behind a
     /// perspective camera, or non-finite). The result may lie outside the map.
     #[inline]
     pub fn project(&self, p: Vec3) -> Option<Projected> {
+        let mut pr = self.project_linear(p)?;
+        if let Some(w) = &self.warp_x {
+            pr.x = w.apply(pr.x);
+        }
+        if let Some(w) = &self.warp_y {
+            pr.y = w.apply(pr.y);
+        }
+        Some(pr)
+    }
+
+    /// The model's projection before any warp.
+    #[inline]
+    pub fn project_linear(&self, p: Vec3) -> Option<Projected> {
         match self.model {
             Model::Equirect {
                 rot,
@@ -226,6 +306,8 @@ impl Projection {
     /// `o + t·d` has depth `t` (`d` is a unit vector for point sensors, and for an orthographic
     /// sensor whose view axis is perpendicular to its image axes). `None` for a degenerate model.
     pub fn ray(&self, x: f32, y: f32) -> Option<(Vec3, Vec3)> {
+        let x = self.warp_x.as_ref().map_or(x, |w| w.invert(x));
+        let y = self.warp_y.as_ref().map_or(y, |w| w.invert(y));
         match self.model {
             Model::Equirect {
                 rot,
@@ -289,10 +371,19 @@ impl Projection {
     }
 
     /// Pixel radii `(rx, ry)` of a sphere of radius `r` (metres) at `depth`, seen at continuous
-    /// row `y`: the paper's depth-adaptive disk, widened in x near an equirect map's poles so
+    /// pixel `(x, y)`: the paper's depth-adaptive disk, widened in x near an equirect map's poles so
     /// that it stays a disk on the sphere.
     #[inline]
-    pub fn disk_radius(&self, r: f32, depth: f32, y: f32) -> (f32, f32) {
+    pub fn disk_radius(&self, r: f32, depth: f32, x: f32, y: f32) -> (f32, f32) {
+        let (rx, ry) = self.disk_radius_linear(r, depth, self.warp_y.as_ref().map_or(y, |w| w.invert(y)));
+        // A warp stretches pixels locally: scale by its slope here.
+        let sx = self.warp_x.as_ref().map_or(1.0, |w| w.slope_at(x));
+        let sy = self.warp_y.as_ref().map_or(1.0, |w| w.slope_at(y));
+        ((rx * sx).min(self.width as f32 * 0.5), ry * sy)
+    }
+
+    #[inline]
+    fn disk_radius_linear(&self, r: f32, depth: f32, y: f32) -> (f32, f32) {
         match self.model {
             Model::Equirect { sx, sy, oy, .. } => {
                 let beta = angular_radius(r, depth);

@@ -3,7 +3,7 @@
 //! otherwise built from the point directions at about one pixel per point.
 
 use crate::error::{Error, Result};
-use crate::projection::{Model, Projection, SensorModel};
+use crate::projection::{Model, Projection, SensorModel, Warp};
 use crate::scan::Scan;
 use glam::{DMat3, DMat4, DVec3, DVec4, Mat2, Vec2, Vec3};
 use serde::Serialize;
@@ -51,7 +51,10 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
         return Err(Error::scan(&scan.name, "has no valid point"));
     }
     if let Some(grid) = &scan.grid {
-        let fits = fit_grid(scan, choice);
+        let mut fits = fit_grid(scan, choice);
+        for f in &mut fits {
+            add_warps(f, scan, grid);
+        }
         let best = fits
             .into_iter()
             .min_by(|a, b| a.score().total_cmp(&b.score()));
@@ -71,15 +74,16 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
                         y * w + x
                     })
                     .collect();
-                let mut projection = fit.projection;
+                let mut projection = fit.projection.clone();
                 projection.width = w as usize;
                 projection.height = h as usize;
                 projection.wrap_x = is_full_circle(&projection);
                 let reason = format!(
-                    "native {}x{} grid fits the {} model within {:.2} px RMS{}",
+                    "native {}x{} grid fits the {} model{} within {:.2} px RMS{}",
                     grid.cols,
                     grid.rows,
                     projection.sensor_model(),
+                    if fit.warped { " with uneven row/column steps" } else { "" },
                     fit.rms,
                     if choice == ProjectionChoice::Auto {
                         " (best of the models tried)"
@@ -152,6 +156,8 @@ struct Fit {
     rms: f64,
     /// Preference among near-equal fits (simpler/more common models first).
     rank: f64,
+    /// True when per-axis warps correct uneven grid steps.
+    warped: bool,
 }
 
 impl Fit {
@@ -213,6 +219,88 @@ fn rms_of(sq: f64, n: usize) -> f64 {
     }
 }
 
+/// Adds per-axis warps to a fit when the grid's steps are uneven (and the warps reduce the
+/// residual), and updates its RMS.
+fn add_warps(fit: &mut Fit, scan: &Scan, grid: &crate::scan::Grid) {
+    let (w, h) = if fit.swap {
+        (grid.rows as usize, grid.cols as usize)
+    } else {
+        (grid.cols as usize, grid.rows as usize)
+    };
+    if w < 2 || h < 2 {
+        return;
+    }
+    let idx: Vec<usize> = sample_indices(scan.len()).collect();
+    // (grid index, linear coordinate) per axis; medians per index are robust to the odd point
+    // whose linear coordinate is meaningless (a point on an equirect pole has no azimuth).
+    let mut per = [Vec::with_capacity(idx.len()), Vec::with_capacity(idx.len())];
+    let mut obs = Vec::with_capacity(idx.len());
+    for &i in &idx {
+        let Some(pr) = fit.projection.project_linear(scan.points[i]) else {
+            continue;
+        };
+        let (gx, gy) = if fit.swap {
+            (grid.row[i] as usize, grid.col[i] as usize)
+        } else {
+            (grid.col[i] as usize, grid.row[i] as usize)
+        };
+        if gx < w && gy < h {
+            per[0].push((gx, pr.x));
+            per[1].push((gy, pr.y));
+            obs.push((pr.x, pr.y, gx as f32 + 0.5, gy as f32 + 0.5));
+        }
+    }
+    let knots = |v: &mut Vec<(usize, f32)>, n: usize| -> Option<Warp> {
+        v.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        let mut known: Vec<(usize, f64)> = Vec::new();
+        let mut s = 0usize;
+        while s < v.len() {
+            let e = s + v[s..].partition_point(|q| q.0 == v[s].0);
+            known.push((v[s].0, v[(s + e) / 2].1 as f64));
+            s = e;
+        }
+        if known.len() < 2 {
+            return None;
+        }
+        // Fill missing indices by linear interpolation (or extrapolation with the end slopes).
+        let mut out = vec![0.0f32; n];
+        let mut j = 0usize;
+        for (k, o) in out.iter_mut().enumerate() {
+            while j + 2 < known.len() && known[j + 1].0 < k {
+                j += 1;
+            }
+            let (k0, v0) = known[j];
+            let (k1, v1) = known[(j + 1).min(known.len() - 1)];
+            let t = (k as f64 - k0 as f64) / (k1 as f64 - k0 as f64).max(1e-12);
+            *o = (v0 + t * (v1 - v0)) as f32;
+        }
+        Warp::new(out)
+    };
+    let [mut px, mut py] = per;
+    let wx = knots(&mut px, w);
+    let wy = knots(&mut py, h);
+    let err = |wx: Option<&Warp>, wy: Option<&Warp>| -> f64 {
+        let sq: f64 = obs
+            .iter()
+            .map(|&(x, y, gx, gy)| {
+                let x = wx.map_or(x, |w| w.apply(x));
+                let y = wy.map_or(y, |w| w.apply(y));
+                ((x - gx) as f64).powi(2) + ((y - gy) as f64).powi(2)
+            })
+            .sum();
+        rms_of(sq, obs.len())
+    };
+    let base = err(None, None);
+    let warped = err(wx.as_ref(), wy.as_ref());
+    // Keep warps only where they clearly help (an evenly stepped grid fits linearly).
+    if warped < 0.8 * base && base > 0.3 {
+        fit.projection.warp_x = wx;
+        fit.projection.warp_y = wy;
+        fit.rms = warped;
+        fit.warped = true;
+    }
+}
+
 /// Fits the models allowed by `choice` to the scan's native grid.
 fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
     let Some(grid) = &scan.grid else {
@@ -268,18 +356,18 @@ fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
         let mut ay = Vec::with_capacity(ang.len());
         for ((az, el), &(r, c)) in ang.iter().zip(rc) {
             let (px, py) = if swap { (r, c) } else { (c, r) };
-            ax.push(([wrap_pi(az - az_ref), 1.0], px));
+            // Azimuth is undefined at the poles: such points only inform the elevation fit.
+            if el.cos() > 0.02 {
+                ax.push(([wrap_pi(az - az_ref), 1.0], px));
+            }
             ay.push(([*el, 1.0], py));
         }
         let (Some(fx), Some(fy)) = (lstsq(&ax), lstsq(&ay)) else {
             continue;
         };
-        let sq: f64 = ax
-            .iter()
-            .zip(&ay)
-            .map(|((f, x), (g, y))| (fx[0] * f[0] + fx[1] - x).powi(2) + (fy[0] * g[0] + fy[1] - y).powi(2))
-            .sum();
-        let rms = rms_of(sq, ax.len());
+        let sqx: f64 = ax.iter().map(|(f, x)| (fx[0] * f[0] + fx[1] - x).powi(2)).sum();
+        let sqy: f64 = ay.iter().map(|(g, y)| (fy[0] * g[0] + fy[1] - y).powi(2)).sum();
+        let rms = (rms_of(sqx, ax.len()).powi(2) + rms_of(sqy, ay.len()).powi(2)).sqrt();
         out.push(Fit {
             projection: Projection {
                 model: Model::Equirect {
@@ -293,10 +381,13 @@ fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
                 width: 0,
                 height: 0,
                 wrap_x: false,
+                warp_x: None,
+                warp_y: None,
             },
             swap,
             rms,
             rank: 0.0,
+            warped: false,
         });
     }
     out
@@ -339,10 +430,13 @@ fn fit_perspective(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Option<Fit>
             width: 0,
             height: 0,
             wrap_x: false,
+            warp_x: None,
+            warp_y: None,
         },
         swap: false,
         rms: rms_of(sq, ax.len()),
         rank: 1.0,
+        warped: false,
     })
 }
 
@@ -385,10 +479,13 @@ fn fit_ortho(pts: &[DVec3], rc: &[(f64, f64)]) -> Option<Fit> {
             width: 0,
             height: 0,
             wrap_x: false,
+            warp_x: None,
+            warp_y: None,
         },
         swap: false,
         rms: rms_of(sq, ax.len()),
         rank: 2.0,
+        warped: false,
     })
 }
 
@@ -543,6 +640,8 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
                 width: width.ceil() as usize,
                 height: height.ceil() as usize,
                 wrap_x: full,
+                warp_x: None,
+                warp_y: None,
             })
         }
         SensorModel::Perspective => {
@@ -572,6 +671,8 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
                 width: ((hi.0 - lo.0) / step + 1.0).ceil() as usize,
                 height: ((hi.1 - lo.1) / step + 1.0).ceil() as usize,
                 wrap_x: false,
+                warp_x: None,
+                warp_y: None,
             })
         }
         SensorModel::Ortho => {
@@ -598,6 +699,8 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
                 width: ((hi.0 - lo.0) / step + 1.0).ceil() as usize,
                 height: ((hi.1 - lo.1) / step + 1.0).ceil() as usize,
                 wrap_x: false,
+                warp_x: None,
+                warp_y: None,
             })
         }
     }

@@ -32,7 +32,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                 }
                 let p = g.position[c];
                 let nrm = g.normal[c];
-                let (rx, ry) = proj.disk_radius(prm.radius, g.depth[c], y as f32 + 0.5);
+                let (rx, ry) = proj.disk_radius(prm.radius, g.depth[c], x as f32 + 0.5, y as f32 + 0.5);
                 let mut rng = Rng::new(prm.seed, c as u64);
                 let (mut sum, mut cnt) = (0.0f32, 0u32);
                 for _ in 0..prm.samples {
@@ -87,6 +87,8 @@ mod tests {
             width: n,
             height: n,
             wrap_x: false,
+            warp_x: None,
+            warp_y: None,
         };
         let pts: Vec<Vec3> = (0..n * n)
             .map(|i| Vec3::new(((i % n) as f32 + 0.5) * step, ((i / n) as f32 + 0.5) * step, 0.0))
@@ -154,6 +156,8 @@ mod tests {
             width: 2,
             height: 1,
             wrap_x: false,
+            warp_x: None,
+            warp_y: None,
         };
         let pts = vec![Vec3::new(0.05, 0.05, 0.0), Vec3::new(0.15, 0.05, 0.1)];
         let g = rasterize(2, 1, &[0, 1], &[1.0, 0.9], &pts, &[Vec3::Z, Vec3::Z], &[0.1, 0.1]);
