@@ -4,6 +4,8 @@
 //! reading a fixed-stride vertex block is one bulk read.
 
 use crate::error::{Error, Result};
+use std::fs::File;
+use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
 use std::path::Path;
 
 /// How the body of a PLY file is encoded.
@@ -109,8 +111,30 @@ impl PlyFile {
     /// wrong: not a PLY, bad header line, unknown type, truncated body (with element and row),
     /// unparsable ascii value, trailing garbage is ignored.
     pub fn read_path(path: &Path) -> Result<PlyFile> {
-        let _ = path;
-        Err(Error::format(path, "not implemented"))
+        let file = File::open(path).map_err(|e| Error::io(path, e))?;
+        let len = file
+            .metadata()
+            .ok()
+            .filter(|m| m.is_file())
+            .map(|m| m.len());
+        // Small files get a small buffer; big ones a large one so the body streams in big reads.
+        let cap = len.map_or(READ_BUF, |l| {
+            usize::try_from(l.saturating_add(1))
+                .unwrap_or(READ_BUF)
+                .clamp(8 << 10, READ_BUF)
+        });
+        let mut src = Source {
+            r: BufReader::with_capacity(cap, file),
+            pos: 0,
+            len,
+            path,
+        };
+        let header = parse_header(&mut src)?;
+        let mut data = Vec::with_capacity(header.elements.len());
+        for def in &header.elements {
+            data.push(read_element(&mut src, header.encoding, def)?);
+        }
+        Ok(PlyFile { header, data })
     }
 
     /// Index of the element named `name`.
@@ -118,18 +142,71 @@ impl PlyFile {
         self.header.elements.iter().position(|e| e.name == name)
     }
 
+    /// Whether the element named `element` exists and has a property (scalar or list) named
+    /// `prop`.
+    pub fn has_property(&self, element: &str, prop: &str) -> bool {
+        self.header
+            .elements
+            .iter()
+            .find(|e| e.name == element)
+            .is_some_and(|e| e.props.iter().any(|p| p.name == prop))
+    }
+
     /// One scalar property of an element converted to f64, in row order. `None` if the element
     /// or property does not exist or the property is a list.
     pub fn scalar_column(&self, element: &str, prop: &str) -> Option<Vec<f64>> {
-        let _ = (element, prop);
-        None
+        let (def, data) = self.element_parts(element)?;
+        let pi = def.props.iter().position(|p| p.name == prop)?;
+        let PropertyKind::Scalar(ty) = def.props.get(pi)?.kind else {
+            return None;
+        };
+        let layout = Layout::of(def, data)?;
+        let mut out = Vec::with_capacity(def.count);
+        match layout {
+            Layout::Fixed { stride, bytes } => {
+                let off = field_offset(&def.props, &[], pi)?;
+                for row in bytes.chunks_exact(stride.max(1)) {
+                    out.push(ty.read_f64(row, off)?);
+                }
+            }
+            Layout::Rows { .. } => {
+                layout.for_each_row(|row| {
+                    let off = field_offset(&def.props, row, pi)?;
+                    out.push(ty.read_f64(row, off)?);
+                    Some(())
+                })?;
+            }
+        }
+        Some(out)
     }
 
     /// The lists of a list property as `u32` indices, one `Vec` per row (used for `range_grid`
     /// and `face`). `None` if missing or not a list.
+    ///
+    /// Also `None` if any item is not a whole number in `0..=u32::MAX` (a negative index, or a
+    /// fractional value in a float-typed list).
     pub fn list_column(&self, element: &str, prop: &str) -> Option<Vec<Vec<u32>>> {
-        let _ = (element, prop);
-        None
+        let (def, data) = self.element_parts(element)?;
+        let pi = def.props.iter().position(|p| p.name == prop)?;
+        let PropertyKind::List { count, item } = def.props.get(pi)?.kind else {
+            return None;
+        };
+        let layout = Layout::of(def, data)?;
+        let mut out = Vec::with_capacity(def.count);
+        layout.for_each_row(|row| {
+            let off = field_offset(&def.props, row, pi)?;
+            let n = list_len(count, row, off)?;
+            let first = off.checked_add(count.size())?;
+            let end = first.checked_add(n.checked_mul(item.size())?)?;
+            let items = row.get(first..end)?;
+            let mut list = Vec::with_capacity(n);
+            for it in items.chunks_exact(item.size()) {
+                list.push(to_u32(item.read_f64(it, 0)?)?);
+            }
+            out.push(list);
+            Some(())
+        })?;
+        Some(out)
     }
 
     /// Sets a scalar property of an element from f64 values (one per row), converting to
@@ -143,15 +220,186 @@ impl PlyFile {
         ty: ScalarType,
         values: &[f64],
     ) -> Result<()> {
-        let _ = (element, prop, ty, values);
+        let PlyFile { header, data } = self;
+        let ei = header
+            .elements
+            .iter()
+            .position(|e| e.name == element)
+            .ok_or_else(|| {
+                Error::Param(format!(
+                    "cannot set property '{prop}': no element '{element}' in the ply file"
+                ))
+            })?;
+        let bad_data = || {
+            Error::Param(format!(
+                "element '{element}': stored rows do not match the header declaration"
+            ))
+        };
+        let (Some(def), Some(body)) = (header.elements.get_mut(ei), data.get_mut(ei)) else {
+            return Err(bad_data());
+        };
+        if values.len() != def.count {
+            return Err(Error::Param(format!(
+                "cannot set property '{prop}' of element '{element}': {} values for {} rows",
+                values.len(),
+                def.count
+            )));
+        }
+        let layout = match Layout::of(def, body) {
+            Some(Layout::Fixed { stride, .. }) => LayoutKind::Fixed(stride),
+            Some(Layout::Rows { .. }) => LayoutKind::Rows,
+            None => return Err(bad_data()),
+        };
+        match def.props.iter().position(|p| p.name == prop) {
+            Some(pi) => {
+                let kind = def.props.get(pi).map(|p| p.kind).ok_or_else(bad_data)?;
+                let PropertyKind::Scalar(ty) = kind else {
+                    return Err(Error::Param(format!(
+                        "cannot set property '{prop}' of element '{element}': it is a list"
+                    )));
+                };
+                let size = ty.size();
+                match layout {
+                    LayoutKind::Fixed(stride) => {
+                        let off = field_offset(&def.props, &[], pi).ok_or_else(bad_data)?;
+                        if stride == 0 || off + size > stride {
+                            return Err(bad_data());
+                        }
+                        for (row, &v) in body.bytes.chunks_exact_mut(stride).zip(values) {
+                            if let Some(dst) = row.get_mut(off..off + size) {
+                                dst.copy_from_slice(ty.encode(v).as_slice());
+                            }
+                        }
+                    }
+                    LayoutKind::Rows => {
+                        // Byte position of the field in every row, all computed (and checked)
+                        // before anything changes.
+                        let offs = body.row_offsets.as_deref().ok_or_else(bad_data)?;
+                        let mut positions = Vec::with_capacity(def.count);
+                        for w in offs.windows(2) {
+                            let &[a, b] = w else { return Err(bad_data()) };
+                            let row = body.bytes.get(a..b).ok_or_else(bad_data)?;
+                            let off = field_offset(&def.props, row, pi).ok_or_else(bad_data)?;
+                            if off.checked_add(size).map_or(true, |e| e > row.len()) {
+                                return Err(bad_data());
+                            }
+                            positions.push(a + off);
+                        }
+                        for (&at, &v) in positions.iter().zip(values) {
+                            if let Some(dst) = body.bytes.get_mut(at..at + size) {
+                                dst.copy_from_slice(ty.encode(v).as_slice());
+                            }
+                        }
+                    }
+                }
+            }
+            None => {
+                check_name(prop).map_err(|m| {
+                    Error::Param(format!("cannot add property to element '{element}': {m}"))
+                })?;
+                let size = ty.size();
+                let extra = values
+                    .len()
+                    .checked_mul(size)
+                    .and_then(|x| x.checked_add(body.bytes.len()))
+                    .ok_or_else(bad_data)?;
+                let mut bytes = Vec::with_capacity(extra);
+                match layout {
+                    LayoutKind::Fixed(stride) => {
+                        if stride == 0 {
+                            for &v in values {
+                                bytes.extend_from_slice(ty.encode(v).as_slice());
+                            }
+                        } else {
+                            for (row, &v) in body.bytes.chunks_exact(stride).zip(values) {
+                                bytes.extend_from_slice(row);
+                                bytes.extend_from_slice(ty.encode(v).as_slice());
+                            }
+                        }
+                        body.bytes = bytes;
+                    }
+                    LayoutKind::Rows => {
+                        let offs = body.row_offsets.as_deref().ok_or_else(bad_data)?;
+                        let mut new_offs = Vec::with_capacity(offs.len());
+                        new_offs.push(0);
+                        for (w, &v) in offs.windows(2).zip(values) {
+                            let &[a, b] = w else { return Err(bad_data()) };
+                            bytes.extend_from_slice(body.bytes.get(a..b).ok_or_else(bad_data)?);
+                            bytes.extend_from_slice(ty.encode(v).as_slice());
+                            new_offs.push(bytes.len());
+                        }
+                        body.bytes = bytes;
+                        body.row_offsets = Some(new_offs);
+                    }
+                }
+                def.props.push(Property {
+                    name: prop.to_string(),
+                    kind: PropertyKind::Scalar(ty),
+                });
+            }
+        }
         Ok(())
     }
 
     /// Writes the file as `binary_little_endian`, keeping comments, obj_info and every element,
     /// atomically (temporary file, then rename).
     pub fn write_path(&self, path: &Path) -> Result<()> {
-        let _ = path;
-        Ok(())
+        if self.data.len() != self.header.elements.len() {
+            return Err(Error::Param(format!(
+                "cannot write {}: {} element bodies for {} declared elements",
+                path.display(),
+                self.data.len(),
+                self.header.elements.len()
+            )));
+        }
+        let mut head = String::with_capacity(1024);
+        head.push_str("ply\nformat binary_little_endian 1.0\n");
+        for c in &self.header.comments {
+            head.push_str("comment ");
+            head.push_str(&one_line(c));
+            head.push('\n');
+        }
+        for c in &self.header.obj_info {
+            head.push_str("obj_info ");
+            head.push_str(&one_line(c));
+            head.push('\n');
+        }
+        for (def, body) in self.header.elements.iter().zip(&self.data) {
+            let bad = |m: String| {
+                Error::Param(format!(
+                    "cannot write {}: element '{}': {m}",
+                    path.display(),
+                    def.name
+                ))
+            };
+            check_name(&def.name).map_err(bad)?;
+            if Layout::of(def, body).is_none() {
+                return Err(bad("stored rows do not match the header declaration".into()));
+            }
+            head.push_str(&format!("element {} {}\n", def.name, def.count));
+            for p in &def.props {
+                check_name(&p.name).map_err(bad)?;
+                match p.kind {
+                    PropertyKind::Scalar(t) => {
+                        head.push_str(&format!("property {} {}\n", t.name(), p.name));
+                    }
+                    PropertyKind::List { count, item } => head.push_str(&format!(
+                        "property list {} {} {}\n",
+                        count.name(),
+                        item.name(),
+                        p.name
+                    )),
+                }
+            }
+        }
+        head.push_str("end_header\n");
+        crate::io::atomic::write_atomic(path, |w| {
+            w.write_all(head.as_bytes())?;
+            for body in &self.data {
+                w.write_all(&body.bytes)?;
+            }
+            Ok(())
+        })
     }
 
     /// Builds a file with a single `vertex` element from named scalar columns of equal length
@@ -160,7 +408,1827 @@ impl PlyFile {
         columns: &[(&str, ScalarType, &[f64])],
         comments: &[String],
     ) -> Result<PlyFile> {
-        let _ = (columns, comments);
-        Err(Error::Param("not implemented".into()))
+        let Some(&(first, _, first_vals)) = columns.first() else {
+            return Err(Error::Param("ply vertex columns: no columns given".into()));
+        };
+        let n = first_vals.len();
+        let mut props: Vec<Property> = Vec::with_capacity(columns.len());
+        for &(name, ty, vals) in columns {
+            check_name(name)
+                .map_err(|m| Error::Param(format!("ply vertex column '{name}': {m}")))?;
+            if props.iter().any(|p| p.name == name) {
+                return Err(Error::Param(format!(
+                    "ply vertex column '{name}' is given twice"
+                )));
+            }
+            if vals.len() != n {
+                return Err(Error::Param(format!(
+                    "ply vertex column '{name}' has {} values but '{first}' has {n}",
+                    vals.len()
+                )));
+            }
+            props.push(Property {
+                name: name.to_string(),
+                kind: PropertyKind::Scalar(ty),
+            });
+        }
+        let stride: usize = columns.iter().map(|c| c.1.size()).sum();
+        let total = n
+            .checked_mul(stride)
+            .ok_or_else(|| Error::Param(format!("ply vertex columns: {n} rows are too many")))?;
+        let mut bytes = vec![0u8; total];
+        // Column by column into the interleaved rows: one type dispatch per column.
+        let mut off = 0;
+        for &(_, ty, vals) in columns {
+            let size = ty.size();
+            if stride > 0 {
+                for (row, &v) in bytes.chunks_exact_mut(stride).zip(vals) {
+                    if let Some(dst) = row.get_mut(off..off + size) {
+                        dst.copy_from_slice(ty.encode(v).as_slice());
+                    }
+                }
+            }
+            off += size;
+        }
+        Ok(PlyFile {
+            header: Header {
+                encoding: Encoding::BinaryLe,
+                comments: comments.to_vec(),
+                obj_info: Vec::new(),
+                elements: vec![ElementDef {
+                    name: "vertex".into(),
+                    count: n,
+                    props,
+                }],
+            },
+            data: vec![ElementData {
+                bytes,
+                row_offsets: None,
+            }],
+        })
+    }
+
+    /// Positions `[x, y, z]` of the `vertex` element (properties `x`, `y`, `z` of any scalar
+    /// type, converted to f64), decoded in one pass over the rows: a fixed-stride walk when the
+    /// element has no list property, the row offsets otherwise. `None` if there is no `vertex`
+    /// element, one of `x`, `y`, `z` is missing or is a list, or the stored rows do not match
+    /// the header.
+    pub fn vertex_xyz(&self) -> Option<Vec<[f64; 3]>> {
+        let (def, data) = self.element_parts("vertex")?;
+        let find = |name: &str| -> Option<(usize, ScalarType)> {
+            let i = def.props.iter().position(|p| p.name == name)?;
+            match def.props.get(i)?.kind {
+                PropertyKind::Scalar(t) => Some((i, t)),
+                PropertyKind::List { .. } => None,
+            }
+        };
+        let (ix, tx) = find("x")?;
+        let (iy, ty) = find("y")?;
+        let (iz, tz) = find("z")?;
+        let layout = Layout::of(def, data)?;
+        let mut out = Vec::with_capacity(def.count);
+        match layout {
+            Layout::Fixed { stride, bytes } => {
+                let ox = field_offset(&def.props, &[], ix)?;
+                let oy = field_offset(&def.props, &[], iy)?;
+                let oz = field_offset(&def.props, &[], iz)?;
+                if [tx, ty, tz] == [ScalarType::F32; 3] {
+                    for row in bytes.chunks_exact(stride.max(1)) {
+                        out.push([
+                            f64::from(f32::from_le_bytes(le_array(row, ox)?)),
+                            f64::from(f32::from_le_bytes(le_array(row, oy)?)),
+                            f64::from(f32::from_le_bytes(le_array(row, oz)?)),
+                        ]);
+                    }
+                } else if [tx, ty, tz] == [ScalarType::F64; 3] {
+                    for row in bytes.chunks_exact(stride.max(1)) {
+                        out.push([
+                            f64::from_le_bytes(le_array(row, ox)?),
+                            f64::from_le_bytes(le_array(row, oy)?),
+                            f64::from_le_bytes(le_array(row, oz)?),
+                        ]);
+                    }
+                } else {
+                    for row in bytes.chunks_exact(stride.max(1)) {
+                        out.push([
+                            tx.read_f64(row, ox)?,
+                            ty.read_f64(row, oy)?,
+                            tz.read_f64(row, oz)?,
+                        ]);
+                    }
+                }
+            }
+            Layout::Rows { .. } => {
+                layout.for_each_row(|row| {
+                    let ox = field_offset(&def.props, row, ix)?;
+                    let oy = field_offset(&def.props, row, iy)?;
+                    let oz = field_offset(&def.props, row, iz)?;
+                    out.push([
+                        tx.read_f64(row, ox)?,
+                        ty.read_f64(row, oy)?,
+                        tz.read_f64(row, oz)?,
+                    ]);
+                    Some(())
+                })?;
+            }
+        }
+        Some(out)
+    }
+
+    /// Declaration and body of the element named `name`.
+    fn element_parts(&self, name: &str) -> Option<(&ElementDef, &ElementData)> {
+        let i = self.element(name)?;
+        Some((self.header.elements.get(i)?, self.data.get(i)?))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Private helpers
+// ---------------------------------------------------------------------------------------------
+
+/// Capacity of the read buffer for big files.
+const READ_BUF: usize = 4 << 20;
+/// Longest header line accepted (a binary file without newlines must not be slurped).
+const MAX_HEADER_LINE: u64 = 64 << 10;
+/// Largest header accepted.
+const MAX_HEADER_BYTES: u64 = 16 << 20;
+/// Longest ascii token accepted.
+const MAX_TOKEN: usize = 4096;
+/// Bulk reads grow their buffer by at most this much before data is seen.
+const BULK_CHUNK: usize = 64 << 20;
+/// Reservation cap when the file length is unknown (not a regular file).
+const UNKNOWN_LEN_CAP: usize = 64 << 20;
+
+impl ScalarType {
+    /// Size in bytes.
+    fn size(self) -> usize {
+        match self {
+            ScalarType::I8 | ScalarType::U8 => 1,
+            ScalarType::I16 | ScalarType::U16 => 2,
+            ScalarType::I32 | ScalarType::U32 | ScalarType::F32 => 4,
+            ScalarType::F64 => 8,
+        }
+    }
+
+    /// Classic PLY name, used when writing.
+    fn name(self) -> &'static str {
+        match self {
+            ScalarType::I8 => "char",
+            ScalarType::U8 => "uchar",
+            ScalarType::I16 => "short",
+            ScalarType::U16 => "ushort",
+            ScalarType::I32 => "int",
+            ScalarType::U32 => "uint",
+            ScalarType::F32 => "float",
+            ScalarType::F64 => "double",
+        }
+    }
+
+    /// Parses either spelling of a type name.
+    fn parse(s: &str) -> Option<ScalarType> {
+        Some(match s {
+            "char" | "int8" => ScalarType::I8,
+            "uchar" | "uint8" => ScalarType::U8,
+            "short" | "int16" => ScalarType::I16,
+            "ushort" | "uint16" => ScalarType::U16,
+            "int" | "int32" => ScalarType::I32,
+            "uint" | "uint32" => ScalarType::U32,
+            "float" | "float32" => ScalarType::F32,
+            "double" | "float64" => ScalarType::F64,
+            _ => return None,
+        })
+    }
+
+    /// Range of an integer type; `None` for floats.
+    fn int_range(self) -> Option<(i64, i64)> {
+        Some(match self {
+            ScalarType::I8 => (i8::MIN.into(), i8::MAX.into()),
+            ScalarType::U8 => (0, u8::MAX.into()),
+            ScalarType::I16 => (i16::MIN.into(), i16::MAX.into()),
+            ScalarType::U16 => (0, u16::MAX.into()),
+            ScalarType::I32 => (i32::MIN.into(), i32::MAX.into()),
+            ScalarType::U32 => (0, u32::MAX.into()),
+            ScalarType::F32 | ScalarType::F64 => return None,
+        })
+    }
+
+    /// The little-endian value at `off` in `b`, as f64 (exact for every type).
+    #[inline]
+    fn read_f64(self, b: &[u8], off: usize) -> Option<f64> {
+        Some(match self {
+            ScalarType::I8 => f64::from(i8::from_le_bytes(le_array(b, off)?)),
+            ScalarType::U8 => f64::from(u8::from_le_bytes(le_array(b, off)?)),
+            ScalarType::I16 => f64::from(i16::from_le_bytes(le_array(b, off)?)),
+            ScalarType::U16 => f64::from(u16::from_le_bytes(le_array(b, off)?)),
+            ScalarType::I32 => f64::from(i32::from_le_bytes(le_array(b, off)?)),
+            ScalarType::U32 => f64::from(u32::from_le_bytes(le_array(b, off)?)),
+            ScalarType::F32 => f64::from(f32::from_le_bytes(le_array(b, off)?)),
+            ScalarType::F64 => f64::from_le_bytes(le_array(b, off)?),
+        })
+    }
+
+    /// `v` as this type, little endian: NaN becomes 0, integers are rounded and clamped
+    /// (Rust's float-to-int `as` saturates).
+    #[inline]
+    fn encode(self, v: f64) -> Encoded {
+        let v = if v.is_nan() { 0.0 } else { v };
+        let mut e = Encoded {
+            buf: [0; 8],
+            len: self.size(),
+        };
+        match self {
+            ScalarType::I8 => e.buf[..1].copy_from_slice(&(v.round() as i8).to_le_bytes()),
+            ScalarType::U8 => e.buf[..1].copy_from_slice(&(v.round() as u8).to_le_bytes()),
+            ScalarType::I16 => e.buf[..2].copy_from_slice(&(v.round() as i16).to_le_bytes()),
+            ScalarType::U16 => e.buf[..2].copy_from_slice(&(v.round() as u16).to_le_bytes()),
+            ScalarType::I32 => e.buf[..4].copy_from_slice(&(v.round() as i32).to_le_bytes()),
+            ScalarType::U32 => e.buf[..4].copy_from_slice(&(v.round() as u32).to_le_bytes()),
+            ScalarType::F32 => e.buf[..4].copy_from_slice(&(v as f32).to_le_bytes()),
+            ScalarType::F64 => e.buf.copy_from_slice(&v.to_le_bytes()),
+        }
+        e
+    }
+}
+
+/// One encoded scalar (at most 8 bytes).
+#[derive(Clone, Copy)]
+struct Encoded {
+    buf: [u8; 8],
+    len: usize,
+}
+
+impl Encoded {
+    fn as_slice(&self) -> &[u8] {
+        self.buf.get(..self.len).unwrap_or(&[])
+    }
+}
+
+/// `N` bytes of `b` at `off`.
+#[inline]
+fn le_array<const N: usize>(b: &[u8], off: usize) -> Option<[u8; N]> {
+    b.get(off..off.checked_add(N)?)?.try_into().ok()
+}
+
+/// `v` as a `u32` index if it is a whole number in range.
+fn to_u32(v: f64) -> Option<u32> {
+    (v.fract() == 0.0 && (0.0..=f64::from(u32::MAX)).contains(&v)).then_some(v as u32)
+}
+
+/// Length of the list whose count (of type `ct`) is at `off` in `row`.
+fn list_len(ct: ScalarType, row: &[u8], off: usize) -> Option<usize> {
+    let n = ct.read_f64(row, off)?;
+    (n.fract() == 0.0 && n >= 0.0 && n <= usize::MAX as f64).then_some(n as usize)
+}
+
+/// Row stride of an element without list properties; `None` if it has one.
+fn fixed_stride(props: &[Property]) -> Option<usize> {
+    props.iter().try_fold(0usize, |acc, p| match p.kind {
+        PropertyKind::Scalar(t) => acc.checked_add(t.size()),
+        PropertyKind::List { .. } => None,
+    })
+}
+
+/// Byte offset of property `target` inside `row` (lists before it are walked; `row` may be
+/// empty when no list precedes the target).
+fn field_offset(props: &[Property], row: &[u8], target: usize) -> Option<usize> {
+    let mut off = 0usize;
+    for p in props.get(..target)? {
+        off = match p.kind {
+            PropertyKind::Scalar(t) => off.checked_add(t.size())?,
+            PropertyKind::List { count, item } => {
+                let n = list_len(count, row, off)?;
+                off.checked_add(count.size())?
+                    .checked_add(n.checked_mul(item.size())?)?
+            }
+        };
+    }
+    Some(off)
+}
+
+/// Whether a name can be written into a header.
+fn check_name(name: &str) -> std::result::Result<(), String> {
+    if name.is_empty() {
+        Err("empty name".into())
+    } else if name.chars().any(|c| c.is_whitespace() || c.is_control()) {
+        Err(format!("name '{name}' contains whitespace"))
+    } else {
+        Ok(())
+    }
+}
+
+/// A comment or obj_info text on one header line.
+fn one_line(s: &str) -> String {
+    s.replace(['\r', '\n'], " ")
+}
+
+/// How the rows of an element are laid out (used while mutating).
+#[derive(Clone, Copy)]
+enum LayoutKind {
+    Fixed(usize),
+    Rows,
+}
+
+/// A checked view of an element body.
+#[derive(Clone, Copy)]
+enum Layout<'a> {
+    /// Every row has `stride` bytes; `bytes.len() == count * stride` (so `bytes` is empty when
+    /// `stride` is 0: iterate with `chunks_exact(stride.max(1))`).
+    Fixed { stride: usize, bytes: &'a [u8] },
+    /// Rows delimited by `offs` (`count + 1` non-decreasing offsets from 0 to `bytes.len()`).
+    Rows { offs: &'a [usize], bytes: &'a [u8] },
+}
+
+impl<'a> Layout<'a> {
+    /// The layout of an element body, `None` if the body does not match the declaration.
+    fn of(def: &ElementDef, data: &'a ElementData) -> Option<Layout<'a>> {
+        match &data.row_offsets {
+            None => {
+                let stride = fixed_stride(&def.props)?;
+                if def.count.checked_mul(stride)? != data.bytes.len() {
+                    return None;
+                }
+                Some(Layout::Fixed {
+                    stride,
+                    bytes: &data.bytes,
+                })
+            }
+            Some(offs) => {
+                let ok = offs.len() == def.count.checked_add(1)?
+                    && offs.first() == Some(&0)
+                    && offs.last() == Some(&data.bytes.len())
+                    && offs.windows(2).all(|w| w.first() <= w.last());
+                ok.then_some(Layout::Rows {
+                    offs,
+                    bytes: &data.bytes,
+                })
+            }
+        }
+    }
+
+    /// Calls `f` on every row in order; stops with `None` as soon as `f` does.
+    fn for_each_row(&self, mut f: impl FnMut(&[u8]) -> Option<()>) -> Option<()> {
+        match *self {
+            Layout::Fixed { stride, bytes } => {
+                for row in bytes.chunks_exact(stride.max(1)) {
+                    f(row)?;
+                }
+            }
+            Layout::Rows { offs, bytes } => {
+                for w in offs.windows(2) {
+                    let &[a, b] = w else { return None };
+                    f(bytes.get(a..b)?)?;
+                }
+            }
+        }
+        Some(())
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reading
+// ---------------------------------------------------------------------------------------------
+
+/// The open file being read, with the number of bytes consumed so far.
+struct Source<'p> {
+    r: BufReader<File>,
+    /// Bytes consumed from the start of the file.
+    pos: u64,
+    /// File length, when the file is a regular file.
+    len: Option<u64>,
+    /// For error messages.
+    path: &'p Path,
+}
+
+impl Source<'_> {
+    fn err(&self, msg: impl Into<String>) -> Error {
+        Error::format(self.path, msg)
+    }
+
+    fn io_err(&self, e: std::io::Error) -> Error {
+        Error::io(self.path, e)
+    }
+
+    /// Bytes left after the current position, when the file length is known.
+    fn remaining(&self) -> Option<u64> {
+        self.len.map(|l| l.saturating_sub(self.pos))
+    }
+
+    /// How many bytes it is safe to reserve for data still to be read.
+    fn reserve_cap(&self) -> usize {
+        self.remaining()
+            .map_or(UNKNOWN_LEN_CAP, |r| usize::try_from(r).unwrap_or(usize::MAX))
+    }
+
+    /// One header line (with its line ending) into `line`; 0 at end of file.
+    fn read_line(&mut self, line: &mut Vec<u8>) -> std::io::Result<usize> {
+        line.clear();
+        let n = (&mut self.r)
+            .take(MAX_HEADER_LINE)
+            .read_until(b'\n', line)?;
+        self.pos += n as u64;
+        Ok(n)
+    }
+
+    /// Fills `buf` as far as the file allows; returns the number of bytes read.
+    fn read_full(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let mut got = 0;
+        while let Some(rest) = buf.get_mut(got..).filter(|r| !r.is_empty()) {
+            match self.r.read(rest) {
+                Ok(0) => break,
+                Ok(n) => got += n,
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        self.pos += got as u64;
+        Ok(got)
+    }
+
+    /// Appends up to `n` bytes to `out`, growing it chunk by chunk so that a bogus `n` never
+    /// allocates more than the data actually present; returns the number of bytes appended.
+    fn append(&mut self, out: &mut Vec<u8>, n: usize) -> std::io::Result<usize> {
+        let start = out.len();
+        if out.capacity() - start >= n {
+            // Already reserved (the file is known to hold the bytes): read straight into the
+            // spare capacity, without zero-filling it first.
+            let res = (&mut self.r).take(n as u64).read_to_end(out);
+            let got = out.len() - start;
+            self.pos += got as u64;
+            return match res {
+                Ok(_) => Ok(got),
+                Err(e) => {
+                    out.truncate(start);
+                    Err(e)
+                }
+            };
+        }
+        let mut done = 0;
+        while done < n {
+            let chunk = (n - done).min(BULK_CHUNK);
+            let start = out.len();
+            out.resize(start + chunk, 0);
+            let got = match out.get_mut(start..) {
+                Some(dst) => self.read_full(dst),
+                None => Ok(0),
+            };
+            let got = match got {
+                Ok(g) => g,
+                Err(e) => {
+                    out.truncate(start);
+                    return Err(e);
+                }
+            };
+            out.truncate(start + got);
+            done += got;
+            if got < chunk {
+                break;
+            }
+        }
+        Ok(done)
+    }
+
+    /// Next whitespace-separated token into `tok`: `None` at end of file, `Some(false)` if the
+    /// token was longer than [`MAX_TOKEN`] (then `tok` holds its start).
+    fn next_token(&mut self, tok: &mut Vec<u8>) -> std::io::Result<Option<bool>> {
+        tok.clear();
+        // Skip whitespace.
+        loop {
+            let buf = self.r.fill_buf()?;
+            if buf.is_empty() {
+                return Ok(None);
+            }
+            let (skip, found) = match buf.iter().position(|b| !b.is_ascii_whitespace()) {
+                Some(i) => (i, true),
+                None => (buf.len(), false),
+            };
+            self.r.consume(skip);
+            self.pos += skip as u64;
+            if found {
+                break;
+            }
+        }
+        // Collect the token.
+        let mut complete = true;
+        loop {
+            let buf = self.r.fill_buf()?;
+            if buf.is_empty() {
+                break;
+            }
+            let (take, end) = match buf.iter().position(|b| b.is_ascii_whitespace()) {
+                Some(i) => (i, true),
+                None => (buf.len(), false),
+            };
+            let room = MAX_TOKEN.saturating_sub(tok.len());
+            if take > room {
+                complete = false;
+            }
+            tok.extend_from_slice(buf.get(..take.min(room)).unwrap_or(&[]));
+            self.r.consume(take);
+            self.pos += take as u64;
+            if end {
+                break;
+            }
+        }
+        Ok(Some(complete))
+    }
+}
+
+/// Reads the header up to and including the `end_header` line.
+fn parse_header(src: &mut Source) -> Result<Header> {
+    let mut line = Vec::with_capacity(256);
+    let n = src.read_line(&mut line).map_err(|e| src.io_err(e))?;
+    let first = line.get(..n).unwrap_or(&[]);
+    if first.strip_suffix(b"\n").unwrap_or(first).trim_ascii() != b"ply" {
+        return Err(src.err("not a PLY file (missing 'ply' magic)"));
+    }
+    let mut encoding = None;
+    let mut comments = Vec::new();
+    let mut obj_info = Vec::new();
+    let mut elements: Vec<ElementDef> = Vec::new();
+    let mut line_no = 1usize;
+    loop {
+        line_no += 1;
+        if src.pos > MAX_HEADER_BYTES {
+            return Err(src.err(format!(
+                "header is longer than {MAX_HEADER_BYTES} bytes without 'end_header'"
+            )));
+        }
+        let n = src.read_line(&mut line).map_err(|e| src.io_err(e))?;
+        if n == 0 {
+            return Err(src.err("header ends before 'end_header'"));
+        }
+        if line.last() != Some(&b'\n') && n as u64 == MAX_HEADER_LINE {
+            return Err(src.err(format!(
+                "line {line_no}: header line longer than {MAX_HEADER_LINE} bytes"
+            )));
+        }
+        let text = String::from_utf8_lossy(&line);
+        let text = text.trim_end_matches(['\n', '\r']).trim_start();
+        if text.is_empty() {
+            continue;
+        }
+        let (kw, rest) = text
+            .split_once(|c: char| c.is_ascii_whitespace())
+            .unwrap_or((text, ""));
+        let words: Vec<&str> = rest.split_ascii_whitespace().collect();
+        match kw {
+            "format" => {
+                if encoding.is_some() {
+                    return Err(src.err(format!("line {line_no}: second 'format' line")));
+                }
+                let [fmt, version] = words.as_slice() else {
+                    return Err(src.err(format!(
+                        "line {line_no}: malformed format line '{text}' (expected 'format <encoding> 1.0')"
+                    )));
+                };
+                encoding = Some(match *fmt {
+                    "ascii" => Encoding::Ascii,
+                    "binary_little_endian" => Encoding::BinaryLe,
+                    "binary_big_endian" => Encoding::BinaryBe,
+                    other => {
+                        return Err(src.err(format!("line {line_no}: unknown format '{other}'")))
+                    }
+                });
+                if version.parse::<f64>().ok() != Some(1.0) {
+                    return Err(src.err(format!(
+                        "line {line_no}: unsupported ply version '{version}'"
+                    )));
+                }
+            }
+            "comment" => comments.push(rest.trim_start().to_string()),
+            "obj_info" => obj_info.push(rest.trim_start().to_string()),
+            "element" => {
+                let [name, count] = words.as_slice() else {
+                    return Err(src.err(format!(
+                        "line {line_no}: malformed element line '{text}' (expected 'element <name> <count>')"
+                    )));
+                };
+                let count = count.parse::<usize>().map_err(|_| {
+                    src.err(format!(
+                        "line {line_no}: element count '{count}' is not a non-negative integer"
+                    ))
+                })?;
+                elements.push(ElementDef {
+                    name: (*name).to_string(),
+                    count,
+                    props: Vec::new(),
+                });
+            }
+            "property" => {
+                let Some(el) = elements.last_mut() else {
+                    return Err(src.err(format!(
+                        "line {line_no}: property declared before any element"
+                    )));
+                };
+                let ty = |s: &str| {
+                    ScalarType::parse(s).ok_or_else(|| {
+                        src.err(format!("line {line_no}: unknown property type '{s}'"))
+                    })
+                };
+                let prop = match words.as_slice() {
+                    ["list", ct, it, name] => {
+                        let count = ty(ct)?;
+                        if count.int_range().is_none() {
+                            return Err(src.err(format!(
+                                "line {line_no}: list count type '{ct}' is not an integer type"
+                            )));
+                        }
+                        Property {
+                            name: (*name).to_string(),
+                            kind: PropertyKind::List {
+                                count,
+                                item: ty(it)?,
+                            },
+                        }
+                    }
+                    [t, name] if *t != "list" => Property {
+                        name: (*name).to_string(),
+                        kind: PropertyKind::Scalar(ty(t)?),
+                    },
+                    _ => {
+                        return Err(src.err(format!(
+                            "line {line_no}: malformed property line '{text}'"
+                        )))
+                    }
+                };
+                el.props.push(prop);
+            }
+            "end_header" => break,
+            other => {
+                return Err(src.err(format!(
+                    "line {line_no}: unknown header keyword '{other}'"
+                )))
+            }
+        }
+    }
+    let encoding = encoding.ok_or_else(|| src.err("header has no 'format' line"))?;
+    Ok(Header {
+        encoding,
+        comments,
+        obj_info,
+        elements,
+    })
+}
+
+/// Reads the body of one element into little-endian rows.
+fn read_element(src: &mut Source, enc: Encoding, def: &ElementDef) -> Result<ElementData> {
+    if def.props.is_empty() {
+        // Rows without properties hold no bytes in any encoding.
+        return Ok(ElementData::default());
+    }
+    match (enc, fixed_stride(&def.props)) {
+        (Encoding::Ascii, _) => read_ascii(src, def),
+        (_, Some(stride)) => read_binary_fixed(src, enc == Encoding::BinaryBe, def, stride),
+        (_, None) => read_binary_rows(src, enc == Encoding::BinaryBe, def),
+    }
+}
+
+fn truncated(src: &Source, def: &ElementDef, row: usize) -> Error {
+    src.err(format!(
+        "truncated: element '{}' has {} rows but data ends in row {row}",
+        def.name, def.count
+    ))
+}
+
+/// A fixed-stride binary element: one bulk read, then (big endian) an in-place byte swap.
+fn read_binary_fixed(
+    src: &mut Source,
+    big_endian: bool,
+    def: &ElementDef,
+    stride: usize,
+) -> Result<ElementData> {
+    let total = def.count.checked_mul(stride).ok_or_else(|| {
+        src.err(format!(
+            "element '{}' declares {} rows of {stride} bytes, more than can be addressed",
+            def.name, def.count
+        ))
+    })?;
+    // Fail before allocating when the file is known to be too short.
+    if let Some(rem) = src.remaining() {
+        if (total as u64) > rem {
+            let rows = usize::try_from(rem / stride as u64).unwrap_or(usize::MAX);
+            return Err(truncated(src, def, rows));
+        }
+    }
+    let mut bytes = Vec::with_capacity(total.min(src.reserve_cap()));
+    let got = src.append(&mut bytes, total).map_err(|e| src.io_err(e))?;
+    if got < total {
+        return Err(truncated(src, def, got / stride));
+    }
+    if big_endian {
+        let mut fields = Vec::with_capacity(def.props.len());
+        let mut off = 0;
+        for p in &def.props {
+            if let PropertyKind::Scalar(t) = p.kind {
+                if t.size() > 1 {
+                    fields.push(off..off + t.size());
+                }
+                off += t.size();
+            }
+        }
+        if !fields.is_empty() {
+            for row in bytes.chunks_exact_mut(stride) {
+                for f in &fields {
+                    if let Some(x) = row.get_mut(f.clone()) {
+                        x.reverse();
+                    }
+                }
+            }
+        }
+    }
+    Ok(ElementData {
+        bytes,
+        row_offsets: None,
+    })
+}
+
+/// A binary element with list properties, row by row.
+fn read_binary_rows(src: &mut Source, big_endian: bool, def: &ElementDef) -> Result<ElementData> {
+    // Smallest possible row: every scalar plus every list count.
+    let min_row: usize = def
+        .props
+        .iter()
+        .map(|p| match p.kind {
+            PropertyKind::Scalar(t) => t.size(),
+            PropertyKind::List { count, .. } => count.size(),
+        })
+        .sum::<usize>()
+        .max(1);
+    let max_rows = src.reserve_cap() / min_row;
+    let mut offs = Vec::with_capacity(def.count.min(max_rows).saturating_add(1));
+    let mut bytes = Vec::with_capacity(def.count.min(max_rows).saturating_mul(min_row));
+    offs.push(0);
+    let mut tmp = [0u8; 8];
+    for row in 0..def.count {
+        for p in &def.props {
+            match p.kind {
+                PropertyKind::Scalar(t) => {
+                    let v = read_scalar(src, t, big_endian, &mut tmp, def, row)?;
+                    bytes.extend_from_slice(v);
+                }
+                PropertyKind::List { count, item } => {
+                    let c = read_scalar(src, count, big_endian, &mut tmp, def, row)?;
+                    let n = count.read_f64(c, 0).unwrap_or(0.0);
+                    if n < 0.0 {
+                        return Err(src.err(format!(
+                            "element '{}' row {row}: list count {n} is negative",
+                            def.name
+                        )));
+                    }
+                    bytes.extend_from_slice(c);
+                    let n = n as usize;
+                    let need = n.checked_mul(item.size());
+                    let short = match (need, src.remaining()) {
+                        (None, _) => true,
+                        (Some(need), Some(rem)) => need as u64 > rem,
+                        (Some(_), None) => false,
+                    };
+                    if short {
+                        return Err(src.err(format!(
+                            "truncated: element '{}' has {} rows but data ends in row {row} \
+                             (list '{}' of {n} items goes past the end of the file)",
+                            def.name, def.count, p.name
+                        )));
+                    }
+                    let need = need.unwrap_or(0);
+                    let start = bytes.len();
+                    let got = src.append(&mut bytes, need).map_err(|e| src.io_err(e))?;
+                    if got < need {
+                        return Err(truncated(src, def, row));
+                    }
+                    if big_endian && item.size() > 1 {
+                        if let Some(items) = bytes.get_mut(start..) {
+                            for it in items.chunks_exact_mut(item.size()) {
+                                it.reverse();
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        offs.push(bytes.len());
+    }
+    Ok(ElementData {
+        bytes,
+        row_offsets: Some(offs),
+    })
+}
+
+/// One binary scalar as little-endian bytes (a slice of `tmp`).
+fn read_scalar<'t>(
+    src: &mut Source,
+    t: ScalarType,
+    big_endian: bool,
+    tmp: &'t mut [u8; 8],
+    def: &ElementDef,
+    row: usize,
+) -> Result<&'t [u8]> {
+    let size = t.size();
+    let buf = tmp.get_mut(..size).unwrap_or(&mut []);
+    let got = src.read_full(buf).map_err(|e| src.io_err(e))?;
+    if got < size {
+        return Err(truncated(src, def, row));
+    }
+    if big_endian {
+        buf.reverse();
+    }
+    Ok(buf)
+}
+
+/// Why an ascii token is not a value of its type.
+enum AsciiProblem {
+    NotNumber,
+    NotInteger,
+    OutOfRange,
+}
+
+/// Parses an ascii integer (`12`, `-3`, `+4`, or a whole number written as a float, `5.0`).
+fn parse_int(tok: &[u8]) -> std::result::Result<i64, AsciiProblem> {
+    let s = std::str::from_utf8(tok).map_err(|_| AsciiProblem::NotNumber)?;
+    if let Ok(v) = s.parse::<i64>() {
+        return Ok(v);
+    }
+    match s.parse::<f64>() {
+        Ok(f) if f.is_finite() && f.fract() == 0.0 => {
+            if (-9.2e18..=9.2e18).contains(&f) {
+                Ok(f as i64)
+            } else {
+                Err(AsciiProblem::OutOfRange)
+            }
+        }
+        Ok(f) if f.is_infinite() => Err(AsciiProblem::OutOfRange),
+        Ok(_) => Err(AsciiProblem::NotInteger),
+        Err(_) => Err(AsciiProblem::NotNumber),
+    }
+}
+
+/// Parses an ascii token as type `t`, little endian.
+fn parse_ascii(tok: &[u8], t: ScalarType) -> std::result::Result<Encoded, AsciiProblem> {
+    match t {
+        ScalarType::F32 => {
+            let s = std::str::from_utf8(tok).map_err(|_| AsciiProblem::NotNumber)?;
+            let v = s.parse::<f32>().map_err(|_| AsciiProblem::NotNumber)?;
+            let mut e = Encoded { buf: [0; 8], len: 4 };
+            e.buf[..4].copy_from_slice(&v.to_le_bytes());
+            Ok(e)
+        }
+        ScalarType::F64 => {
+            let s = std::str::from_utf8(tok).map_err(|_| AsciiProblem::NotNumber)?;
+            let v = s.parse::<f64>().map_err(|_| AsciiProblem::NotNumber)?;
+            Ok(Encoded {
+                buf: v.to_le_bytes(),
+                len: 8,
+            })
+        }
+        _ => {
+            let v = parse_int(tok)?;
+            let (lo, hi) = t.int_range().unwrap_or((0, 0));
+            if v < lo || v > hi {
+                return Err(AsciiProblem::OutOfRange);
+            }
+            // Exact: the value is a whole number within the type's range.
+            Ok(t.encode(v as f64))
+        }
+    }
+}
+
+/// A token for an error message (lossy, shortened).
+fn show(tok: &[u8]) -> String {
+    let s = String::from_utf8_lossy(tok);
+    if s.chars().count() > 40 {
+        format!("{}…", s.chars().take(40).collect::<String>())
+    } else {
+        s.into_owned()
+    }
+}
+
+/// An ascii element, token by token, with one reused token buffer.
+fn read_ascii(src: &mut Source, def: &ElementDef) -> Result<ElementData> {
+    let stride = fixed_stride(&def.props);
+    let has_lists = stride.is_none();
+    // Every ascii value takes at least two bytes (a digit and a separator).
+    let min_row = def.props.len().saturating_mul(2).max(1);
+    let max_rows = src.reserve_cap() / min_row + 1;
+    let rows_cap = def.count.min(max_rows);
+    let mut bytes = Vec::with_capacity(rows_cap.saturating_mul(stride.unwrap_or(min_row)));
+    let mut offs = if has_lists {
+        let mut o = Vec::with_capacity(rows_cap.saturating_add(1));
+        o.push(0);
+        Some(o)
+    } else {
+        None
+    };
+    let mut tok = Vec::with_capacity(64);
+    for row in 0..def.count {
+        for p in &def.props {
+            let (value_type, is_list) = match p.kind {
+                PropertyKind::Scalar(t) => (t, None),
+                PropertyKind::List { count, item } => (count, Some(item)),
+            };
+            next_ascii(src, &mut tok, def, row)?;
+            let Some(item) = is_list else {
+                let v = parse_ascii(&tok, value_type)
+                    .map_err(|e| ascii_error(src, &tok, e, value_type, def, row, &p.name))?;
+                bytes.extend_from_slice(v.as_slice());
+                continue;
+            };
+            let n = match parse_int(&tok) {
+                Ok(n) if n < 0 => {
+                    return Err(src.err(format!(
+                        "element '{}' row {row}: list count {n} is negative",
+                        def.name
+                    )))
+                }
+                Ok(n) => n,
+                Err(e) => return Err(ascii_error(src, &tok, e, value_type, def, row, &p.name)),
+            };
+            let (_, hi) = value_type.int_range().unwrap_or((0, 0));
+            if n > hi {
+                return Err(src.err(format!(
+                    "element '{}' row {row}: list count {n} is too large for its type {}",
+                    def.name,
+                    value_type.name()
+                )));
+            }
+            bytes.extend_from_slice(value_type.encode(n as f64).as_slice());
+            for _ in 0..n {
+                next_ascii(src, &mut tok, def, row)?;
+                let v = parse_ascii(&tok, item)
+                    .map_err(|e| ascii_error(src, &tok, e, item, def, row, &p.name))?;
+                bytes.extend_from_slice(v.as_slice());
+            }
+        }
+        if let Some(o) = offs.as_mut() {
+            o.push(bytes.len());
+        }
+    }
+    Ok(ElementData {
+        bytes,
+        row_offsets: offs,
+    })
+}
+
+/// The next ascii token of element `def`, row `row`, or the matching error.
+fn next_ascii(src: &mut Source, tok: &mut Vec<u8>, def: &ElementDef, row: usize) -> Result<()> {
+    match src.next_token(tok).map_err(|e| src.io_err(e))? {
+        None => Err(truncated(src, def, row)),
+        Some(false) => Err(src.err(format!(
+            "ascii value '{}' in element '{}' row {row} is longer than {MAX_TOKEN} characters",
+            show(tok),
+            def.name
+        ))),
+        Some(true) => Ok(()),
+    }
+}
+
+fn ascii_error(
+    src: &Source,
+    tok: &[u8],
+    e: AsciiProblem,
+    t: ScalarType,
+    def: &ElementDef,
+    row: usize,
+    prop: &str,
+) -> Error {
+    let what = match e {
+        AsciiProblem::NotNumber => "is not a number".to_string(),
+        AsciiProblem::NotInteger => format!("is not an integer (type {})", t.name()),
+        AsciiProblem::OutOfRange => format!("is out of range for type {}", t.name()),
+    };
+    src.err(format!(
+        "ascii value '{}' in element '{}' row {row} {what} (property '{prop}')",
+        show(tok),
+        def.name
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+
+    /// Header text plus body bytes.
+    fn ply(header: &str, body: &[u8]) -> Vec<u8> {
+        let mut v = header.as_bytes().to_vec();
+        v.extend_from_slice(body);
+        v
+    }
+
+    fn write_tmp(dir: &tempfile::TempDir, name: &str, bytes: &[u8]) -> PathBuf {
+        let p = dir.path().join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    }
+
+    fn read_bytes(bytes: &[u8]) -> Result<PlyFile> {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write_tmp(&dir, "t.ply", bytes);
+        PlyFile::read_path(&p)
+    }
+
+    fn read_ok(bytes: &[u8]) -> PlyFile {
+        match read_bytes(bytes) {
+            Ok(p) => p,
+            Err(e) => panic!("read failed: {e}"),
+        }
+    }
+
+    /// The message of a format error (panics on success or on another error kind).
+    fn format_err(bytes: &[u8]) -> String {
+        match read_bytes(bytes) {
+            Err(Error::Format { msg, .. }) => msg,
+            Err(e) => panic!("expected a format error, got {e}"),
+            Ok(_) => panic!("expected a format error, read succeeded"),
+        }
+    }
+
+    /// Writes as binary LE and reads back.
+    fn round_trip(p: &PlyFile) -> PlyFile {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out.ply");
+        p.write_path(&out).unwrap();
+        let back = PlyFile::read_path(&out).unwrap();
+        assert_eq!(back.header.encoding, Encoding::BinaryLe);
+        back
+    }
+
+    /// Same file apart from the recorded input encoding.
+    fn assert_same_content(a: &PlyFile, b: &PlyFile) {
+        assert_eq!(a.header.comments, b.header.comments);
+        assert_eq!(a.header.obj_info, b.header.obj_info);
+        assert_eq!(a.header.elements, b.header.elements);
+        assert_eq!(a.data, b.data);
+    }
+
+    #[test]
+    fn ascii_to_le_round_trip() {
+        let src = "ply\nformat ascii 1.0\ncomment made by hand\n\
+                   element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+                   property uchar red\nproperty int16 s\n\
+                   element face 2\nproperty list uchar int vertex_indices\nend_header\n\
+                   0 0 0 255 -7\n1.5 -2.25 3e-3 0 32767\n-0.1 1e10 7 12 -32768\n\
+                   3 0 1 2\n4 2 1 0 1\n";
+        let p = read_ok(src.as_bytes());
+        assert_eq!(p.header.encoding, Encoding::Ascii);
+        assert_eq!(p.header.comments, vec!["made by hand".to_string()]);
+        assert_eq!(
+            p.scalar_column("vertex", "x").unwrap(),
+            vec![0.0, 1.5, f64::from(-0.1f32)]
+        );
+        assert_eq!(
+            p.scalar_column("vertex", "z").unwrap(),
+            vec![0.0, f64::from(3e-3f32), 7.0]
+        );
+        assert_eq!(p.scalar_column("vertex", "red").unwrap(), vec![255.0, 0.0, 12.0]);
+        assert_eq!(
+            p.scalar_column("vertex", "s").unwrap(),
+            vec![-7.0, 32767.0, -32768.0]
+        );
+        assert_eq!(
+            p.list_column("face", "vertex_indices").unwrap(),
+            vec![vec![0, 1, 2], vec![2, 1, 0, 1]]
+        );
+        assert!(p.data[0].row_offsets.is_none());
+        assert_eq!(p.data[0].bytes.len(), 3 * 15);
+        let back = round_trip(&p);
+        assert_same_content(&p, &back);
+        assert_eq!(back.vertex_xyz().unwrap()[1], [1.5, -2.25, f64::from(3e-3f32)]);
+    }
+
+    /// (classic name, numeric name, little-endian bytes, big-endian bytes, value).
+    type TypedValue = (&'static str, &'static str, Vec<u8>, Vec<u8>, f64);
+
+    /// One row with an extreme or awkward value of every type.
+    fn every_type_row() -> Vec<TypedValue> {
+        let f32v = f32::from_bits(0x3f9d_f3b6);
+        let sub = f32::from_bits(1); // smallest subnormal
+        let f64v = std::f64::consts::PI;
+        vec![
+            ("char", "int8", vec![0x80], vec![0x80], -128.0),
+            ("uchar", "uint8", vec![0xff], vec![0xff], 255.0),
+            (
+                "short",
+                "int16",
+                (-32768i16).to_le_bytes().to_vec(),
+                (-32768i16).to_be_bytes().to_vec(),
+                -32768.0,
+            ),
+            (
+                "ushort",
+                "uint16",
+                0xfffeu16.to_le_bytes().to_vec(),
+                0xfffeu16.to_be_bytes().to_vec(),
+                65534.0,
+            ),
+            (
+                "int",
+                "int32",
+                i32::MIN.to_le_bytes().to_vec(),
+                i32::MIN.to_be_bytes().to_vec(),
+                f64::from(i32::MIN),
+            ),
+            (
+                "uint",
+                "uint32",
+                0xdead_beefu32.to_le_bytes().to_vec(),
+                0xdead_beefu32.to_be_bytes().to_vec(),
+                f64::from(0xdead_beefu32),
+            ),
+            (
+                "float",
+                "float32",
+                f32v.to_le_bytes().to_vec(),
+                f32v.to_be_bytes().to_vec(),
+                f64::from(f32v),
+            ),
+            (
+                "float",
+                "float32",
+                sub.to_le_bytes().to_vec(),
+                sub.to_be_bytes().to_vec(),
+                f64::from(sub),
+            ),
+            (
+                "double",
+                "float64",
+                f64v.to_le_bytes().to_vec(),
+                f64v.to_be_bytes().to_vec(),
+                f64v,
+            ),
+        ]
+    }
+
+    #[test]
+    fn big_endian_to_le_bit_exact_every_type() {
+        let row = every_type_row();
+        let mut be_head = String::from("ply\nformat binary_big_endian 1.0\nelement vertex 2\n");
+        let mut le_head =
+            String::from("ply\nformat binary_little_endian 1.0\nelement vertex 2\n");
+        let (mut be_body, mut le_body) = (Vec::new(), Vec::new());
+        for (i, (classic, numeric, _, _, _)) in row.iter().enumerate() {
+            be_head.push_str(&format!("property {numeric} p{i}\n"));
+            le_head.push_str(&format!("property {classic} p{i}\n"));
+        }
+        be_head.push_str("end_header\n");
+        le_head.push_str("end_header\n");
+        for _ in 0..2 {
+            for (_, _, le, be, _) in &row {
+                le_body.extend_from_slice(le);
+                be_body.extend_from_slice(be);
+            }
+        }
+        let be = read_ok(&ply(&be_head, &be_body));
+        let le = read_ok(&ply(&le_head, &le_body));
+        assert_eq!(be.header.encoding, Encoding::BinaryBe);
+        assert_eq!(be.data, le.data);
+        assert_eq!(be.data[0].bytes, le_body);
+        assert_eq!(be.header.elements, le.header.elements);
+        for (i, (_, _, _, _, v)) in row.iter().enumerate() {
+            let col = be.scalar_column("vertex", &format!("p{i}")).unwrap();
+            assert_eq!(col.len(), 2);
+            for c in col {
+                assert_eq!(c.to_bits(), v.to_bits(), "property p{i}");
+            }
+        }
+        let back = round_trip(&be);
+        assert_same_content(&be, &back);
+        // Written with the classic names.
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("o.ply");
+        be.write_path(&out).unwrap();
+        let bytes = std::fs::read(&out).unwrap();
+        assert_eq!(bytes, ply(&le_head, &le_body));
+    }
+
+    #[test]
+    fn lists_faces_in_every_encoding() {
+        let ascii = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n\
+                     element face 3\nproperty list uint8 int32 vertex_indices\n\
+                     property ushort flags\nend_header\n\
+                     5\n3 0 1 2 9\n0 8\n4 10 11 12 13 65535\n";
+        let a = read_ok(ascii.as_bytes());
+        let want = vec![vec![0, 1, 2], vec![], vec![10, 11, 12, 13]];
+        assert_eq!(a.list_column("face", "vertex_indices").unwrap(), want);
+        assert_eq!(
+            a.scalar_column("face", "flags").unwrap(),
+            vec![9.0, 8.0, 65535.0]
+        );
+        assert_eq!(a.data[1].row_offsets.as_deref(), Some(&[0, 15, 18, 37][..]));
+
+        let head = |fmt: &str| {
+            format!(
+                "ply\nformat {fmt} 1.0\nelement vertex 1\nproperty float x\n\
+                 element face 3\nproperty list uchar int vertex_indices\n\
+                 property uint16 flags\nend_header\n"
+            )
+        };
+        let mut be = 5f32.to_be_bytes().to_vec();
+        let mut le = 5f32.to_le_bytes().to_vec();
+        for (list, flag) in [(&[0i32, 1, 2][..], 9u16), (&[], 8), (&[10, 11, 12, 13], 65535)] {
+            be.push(list.len() as u8);
+            le.push(list.len() as u8);
+            for &i in list {
+                be.extend_from_slice(&i.to_be_bytes());
+                le.extend_from_slice(&i.to_le_bytes());
+            }
+            be.extend_from_slice(&flag.to_be_bytes());
+            le.extend_from_slice(&flag.to_le_bytes());
+        }
+        let b = read_ok(&ply(&head("binary_big_endian"), &be));
+        let l = read_ok(&ply(&head("binary_little_endian"), &le));
+        assert_eq!(a.data, b.data);
+        assert_eq!(a.data, l.data);
+        assert_eq!(b.list_column("face", "vertex_indices").unwrap(), want);
+        assert_same_content(&b, &round_trip(&b));
+    }
+
+    /// A Stanford-style range scan: `obj_info` grid size and a `range_grid` element whose
+    /// entries are empty or hold one vertex index.
+    const RANGE_SCAN: &str = "ply\nformat ascii 1.0\nobj_info is_cyberware_data 1\n\
+        obj_info num_cols 3\nobj_info num_rows 2\nelement vertex 3\nproperty float x\n\
+        property float y\nproperty float z\nelement range_grid 6\n\
+        property list uchar int vertex_indices\nend_header\n\
+        -0.06325 0.0359793 0.0420873 \n0.5 0.25 -1 \n1e-3 2 3 \n0 \n1 0 \n0 \n1 1 \n1 2 \n0 \n";
+
+    #[test]
+    fn range_grid_empty_and_single_lists() {
+        let p = read_ok(RANGE_SCAN.as_bytes());
+        let grid = p.list_column("range_grid", "vertex_indices").unwrap();
+        assert_eq!(grid, vec![vec![], vec![0], vec![], vec![1], vec![2], vec![]]);
+        assert_eq!(p.data[1].bytes.len(), 6 + 3 * 4);
+        assert_eq!(
+            p.vertex_xyz().unwrap()[0],
+            [
+                f64::from(-0.06325f32),
+                f64::from(0.0359793f32),
+                f64::from(0.0420873f32)
+            ]
+        );
+        let back = round_trip(&p);
+        assert_same_content(&p, &back);
+        assert_eq!(back.list_column("range_grid", "vertex_indices").unwrap(), grid);
+    }
+
+    #[test]
+    fn comments_and_obj_info_kept_in_order() {
+        let src = "ply\nformat ascii 1.0\ncomment first one\nobj_info num_cols 3\n\
+                   comment second  with  spaces\nobj_info  num_rows 2\ncomment\n\
+                   element vertex 0\nproperty float x\nend_header\n";
+        let p = read_ok(src.as_bytes());
+        assert_eq!(
+            p.header.comments,
+            vec!["first one", "second  with  spaces", ""]
+        );
+        assert_eq!(p.header.obj_info, vec!["num_cols 3", "num_rows 2"]);
+        let back = round_trip(&p);
+        assert_same_content(&p, &back);
+        assert_eq!(back.scalar_column("vertex", "x").unwrap(), Vec::<f64>::new());
+    }
+
+    #[test]
+    fn set_scalar_column_overwrite_and_append_fixed() {
+        let x = [1.0, 2.0, 3.0, 4.0];
+        let flag = [1.0, 1.0, 1.0, 1.0];
+        let mut p = PlyFile::from_vertex_columns(
+            &[
+                ("x", ScalarType::F32, &x),
+                ("y", ScalarType::F64, &x),
+                ("z", ScalarType::F32, &x),
+                ("flag", ScalarType::U8, &flag),
+            ],
+            &["synthetic".to_string()],
+        )
+        .unwrap();
+        assert_eq!(p.header.encoding, Encoding::BinaryLe);
+        assert_eq!(p.header.comments, vec!["synthetic"]);
+        // Overwrite keeps the existing type (u8): round, clamp, NaN -> 0.
+        p.set_scalar_column("vertex", "flag", ScalarType::F64, &[-3.0, 2.5, 300.0, f64::NAN])
+            .unwrap();
+        assert_eq!(
+            p.scalar_column("vertex", "flag").unwrap(),
+            vec![0.0, 3.0, 255.0, 0.0]
+        );
+        p.set_scalar_column("vertex", "y", ScalarType::U8, &[0.1, 0.2, 0.3, 0.4])
+            .unwrap();
+        assert_eq!(p.scalar_column("vertex", "y").unwrap(), vec![0.1, 0.2, 0.3, 0.4]);
+        // Append two new properties.
+        p.set_scalar_column("vertex", "ao", ScalarType::F32, &[0.5, 0.25, f64::NAN, 1.0])
+            .unwrap();
+        p.set_scalar_column("vertex", "n", ScalarType::I16, &[40000.0, -1.4, -1.6, -1e9])
+            .unwrap();
+        let names: Vec<&str> = p.header.elements[0]
+            .props
+            .iter()
+            .map(|q| q.name.as_str())
+            .collect();
+        assert_eq!(names, vec!["x", "y", "z", "flag", "ao", "n"]);
+        assert_eq!(p.data[0].bytes.len(), 4 * (4 + 8 + 4 + 1 + 4 + 2));
+        assert_eq!(p.scalar_column("vertex", "ao").unwrap(), vec![0.5, 0.25, 0.0, 1.0]);
+        assert_eq!(
+            p.scalar_column("vertex", "n").unwrap(),
+            vec![32767.0, -1.0, -2.0, -32768.0]
+        );
+        assert_eq!(p.scalar_column("vertex", "x").unwrap(), x.to_vec());
+        assert_eq!(
+            p.vertex_xyz().unwrap(),
+            vec![[1.0, 0.1, 1.0], [2.0, 0.2, 2.0], [3.0, 0.3, 3.0], [4.0, 0.4, 4.0]]
+        );
+        assert_same_content(&p, &round_trip(&p));
+        // Errors.
+        assert!(p.set_scalar_column("vertex", "ao", ScalarType::F32, &[1.0]).is_err());
+        assert!(p.set_scalar_column("face", "ao", ScalarType::F32, &[]).is_err());
+        assert!(p.set_scalar_column("vertex", "a b", ScalarType::F32, &x).is_err());
+    }
+
+    #[test]
+    fn set_scalar_column_with_lists() {
+        let src = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n\
+                   property list uchar int nb\nproperty float y\nproperty float z\n\
+                   end_header\n1 2 7 8 2 3\n4 0 5 6\n7 1 9 8 9\n";
+        let mut p = read_ok(src.as_bytes());
+        assert!(p.data[0].row_offsets.is_some());
+        assert_eq!(
+            p.vertex_xyz().unwrap(),
+            vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
+        );
+        p.set_scalar_column("vertex", "y", ScalarType::U8, &[-2.0, -5.0, 0.5])
+            .unwrap();
+        p.set_scalar_column("vertex", "ao", ScalarType::U16, &[1.4, 70000.0, f64::NAN])
+            .unwrap();
+        assert_eq!(p.scalar_column("vertex", "y").unwrap(), vec![-2.0, -5.0, 0.5]);
+        assert_eq!(p.scalar_column("vertex", "ao").unwrap(), vec![1.0, 65535.0, 0.0]);
+        assert_eq!(
+            p.list_column("vertex", "nb").unwrap(),
+            vec![vec![7, 8], vec![], vec![9]]
+        );
+        assert_eq!(p.scalar_column("vertex", "z").unwrap(), vec![3.0, 6.0, 9.0]);
+        assert_eq!(
+            p.data[0].row_offsets.as_deref(),
+            Some(&[0, 23, 38, 57][..])
+        );
+        assert!(p
+            .set_scalar_column("vertex", "nb", ScalarType::U8, &[1.0, 2.0, 3.0])
+            .is_err());
+        assert_same_content(&p, &round_trip(&p));
+    }
+
+    #[test]
+    fn truncated_binary_and_ascii() {
+        let head = "ply\nformat binary_little_endian 1.0\nelement vertex 4\n\
+                    property float x\nproperty float y\nend_header\n";
+        let msg = format_err(&ply(head, &[0u8; 8 * 2 + 5]));
+        assert_eq!(msg, "truncated: element 'vertex' has 4 rows but data ends in row 2");
+
+        let head = "ply\nformat binary_big_endian 1.0\nelement face 3\n\
+                    property list uchar int vertex_indices\nend_header\n";
+        let mut body = vec![1u8, 0, 0, 0, 1, 3, 0, 0, 0, 1, 0, 0];
+        let msg = format_err(&ply(head, &body));
+        assert!(
+            msg.starts_with("truncated: element 'face' has 3 rows but data ends in row 1"),
+            "{msg}"
+        );
+        body.truncate(5);
+        let msg = format_err(&ply(head, &body));
+        assert_eq!(msg, "truncated: element 'face' has 3 rows but data ends in row 1");
+
+        let src = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n\
+                   property float y\nend_header\n1 2\n3 4\n5";
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "truncated: element 'vertex' has 3 rows but data ends in row 2"
+        );
+        let src = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n";
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "truncated: element 'vertex' has 1 rows but data ends in row 0"
+        );
+    }
+
+    #[test]
+    fn bad_magic_format_and_header_lines() {
+        assert_eq!(
+            format_err(b"PLY\nformat ascii 1.0\nend_header\n"),
+            "not a PLY file (missing 'ply' magic)"
+        );
+        assert_eq!(format_err(b""), "not a PLY file (missing 'ply' magic)");
+        assert_eq!(
+            format_err(&[0x89, b'P', b'N', b'G', 0, 0, 0xff]),
+            "not a PLY file (missing 'ply' magic)"
+        );
+        assert_eq!(
+            format_err(b"ply\nformat ascii 1.0\nelement vertex 1\n"),
+            "header ends before 'end_header'"
+        );
+        assert_eq!(
+            format_err(b"ply\nformat binary 1.0\nend_header\n"),
+            "line 2: unknown format 'binary'"
+        );
+        assert_eq!(
+            format_err(b"ply\nformat ascii 2.0\nend_header\n"),
+            "line 2: unsupported ply version '2.0'"
+        );
+        assert_eq!(
+            format_err(b"ply\nelement vertex 0\nend_header\n"),
+            "header has no 'format' line"
+        );
+        assert_eq!(
+            format_err(b"ply\nformat ascii 1.0\nproperty float x\nend_header\n"),
+            "line 3: property declared before any element"
+        );
+        assert_eq!(
+            format_err(b"ply\nformat ascii 1.0\nelement vertex -1\nend_header\n"),
+            "line 3: element count '-1' is not a non-negative integer"
+        );
+        assert_eq!(
+            format_err(b"ply\nformat ascii 1.0\nvertex 3\nend_header\n"),
+            "line 3: unknown header keyword 'vertex'"
+        );
+        let long = format!("ply\ncomment {}\n", "x".repeat(100_000));
+        assert!(format_err(long.as_bytes()).contains("header line longer than"));
+    }
+
+    #[test]
+    fn bad_property_types() {
+        let src = "ply\nformat ascii 1.0\ncomment a\ncomment b\nelement vertex 1\n\
+                   property float x\nproperty float y\nproperty float z\nproperty uchar r\n\
+                   property uchar g\nproperty uchar b\nproperty flot q\nend_header\n";
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "line 12: unknown property type 'flot'"
+        );
+        assert_eq!(
+            format_err(
+                b"ply\nformat ascii 1.0\nelement f 1\nproperty list uchar int64 v\nend_header\n"
+            ),
+            "line 4: unknown property type 'int64'"
+        );
+        assert_eq!(
+            format_err(
+                b"ply\nformat ascii 1.0\nelement f 1\nproperty list float int v\nend_header\n"
+            ),
+            "line 4: list count type 'float' is not an integer type"
+        );
+        assert_eq!(
+            format_err(b"ply\nformat ascii 1.0\nelement f 1\nproperty float\nend_header\n"),
+            "line 4: malformed property line 'property float'"
+        );
+    }
+
+    #[test]
+    fn huge_counts_with_tiny_file() {
+        // Would need 12 PB: must fail on the file length, not try to allocate.
+        let head = "ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000000\n\
+                    property float x\nproperty float y\nproperty float z\nend_header\n";
+        assert_eq!(
+            format_err(&ply(head, &[0u8; 25])),
+            "truncated: element 'vertex' has 1000000000000000 rows but data ends in row 2"
+        );
+        // count * stride overflows usize.
+        let head = format!(
+            "ply\nformat binary_big_endian 1.0\nelement vertex {}\nproperty double x\n\
+             end_header\n",
+            usize::MAX
+        );
+        assert!(format_err(&ply(&head, &[0u8; 8])).contains("more than can be addressed"));
+        // Huge list-bearing element.
+        let head = "ply\nformat binary_little_endian 1.0\nelement face 999999999999999\n\
+                    property list uchar int v\nend_header\n";
+        assert!(format_err(&ply(head, &[0u8; 3])).starts_with("truncated: element 'face'"));
+        // Huge list count in a tiny file.
+        let head = "ply\nformat binary_little_endian 1.0\nelement face 1\n\
+                    property list uint int v\nend_header\n";
+        let msg = format_err(&ply(head, &[0xff, 0xff, 0xff, 0xff, 1, 2, 3, 4]));
+        assert!(msg.starts_with("truncated: element 'face' has 1 rows"), "{msg}");
+        // Negative list count.
+        let head = "ply\nformat binary_little_endian 1.0\nelement face 1\n\
+                    property list int int v\nend_header\n";
+        assert_eq!(
+            format_err(&ply(head, &(-1i32).to_le_bytes())),
+            "element 'face' row 0: list count -1 is negative"
+        );
+        let src = "ply\nformat ascii 1.0\nelement face 2\nproperty list uchar int v\n\
+                   end_header\n1 5\n-1 3\n";
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "element 'face' row 1: list count -1 is negative"
+        );
+        // Huge ascii counts.
+        let src = "ply\nformat ascii 1.0\nelement vertex 18446744073709551615\n\
+                   property double x\nelement face 99999999999999\n\
+                   property list uint int v\nend_header\n1\n2\n";
+        assert!(format_err(src.as_bytes()).starts_with("truncated: element 'vertex'"));
+        let src = "ply\nformat ascii 1.0\nelement face 1\nproperty list uint int v\n\
+                   end_header\n4000000000 1 2\n";
+        assert!(format_err(src.as_bytes()).starts_with("truncated: element 'face'"));
+        // A property-less element with a huge count holds nothing and reads instantly.
+        let src = "ply\nformat ascii 1.0\nelement nothing 18446744073709551615\nend_header\n";
+        let p = read_ok(src.as_bytes());
+        assert_eq!(p.data[0].bytes.len(), 0);
+    }
+
+    #[test]
+    fn crlf_header_and_extra_spaces() {
+        let head = "ply\r\nformat  binary_little_endian   1.0 \r\n  comment hello\r\n\r\n\
+                    obj_info num_cols 2\r\nelement   vertex  2 \r\nproperty   float32 x\r\n\
+                    property\tuint8  i\r\nend_header\r\n";
+        let mut body = Vec::new();
+        for (x, i) in [(1.5f32, 7u8), (-2.0, 9)] {
+            body.extend_from_slice(&x.to_le_bytes());
+            body.push(i);
+        }
+        let p = read_ok(&ply(head, &body));
+        assert_eq!(p.header.comments, vec!["hello"]);
+        assert_eq!(p.header.obj_info, vec!["num_cols 2"]);
+        assert_eq!(p.scalar_column("vertex", "x").unwrap(), vec![1.5, -2.0]);
+        assert_eq!(p.scalar_column("vertex", "i").unwrap(), vec![7.0, 9.0]);
+        // An ascii body with CRLF and tabs.
+        let src = "ply\r\nformat ascii 1.0\r\nelement vertex 2\r\nproperty float x\r\n\
+                   property float y\r\nend_header\r\n1\t2 \r\n  3   4\r\n";
+        let p = read_ok(src.as_bytes());
+        assert_eq!(p.scalar_column("vertex", "y").unwrap(), vec![2.0, 4.0]);
+    }
+
+    #[test]
+    fn ascii_value_errors_and_leniency() {
+        let src = "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\n\
+                   property float y\nend_header\n1 2\n3 4\n1 2\n3 4\n5 6\n7 abc\n";
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "ascii value 'abc' in element 'vertex' row 5 is not a number (property 'y')"
+        );
+        let src = "ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar r\nend_header\n300\n";
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "ascii value '300' in element 'vertex' row 0 is out of range for type uchar \
+             (property 'r')"
+        );
+        let src = "ply\nformat ascii 1.0\nelement vertex 1\nproperty int r\nend_header\n1.5\n";
+        assert!(format_err(src.as_bytes()).contains("is not an integer"));
+        let src = format!(
+            "ply\nformat ascii 1.0\nelement vertex 1\nproperty float r\nend_header\n{}\n",
+            "1".repeat(5000)
+        );
+        assert!(format_err(src.as_bytes()).contains("is longer than"));
+        // Whole numbers written as floats are accepted for integer types, as are nan/inf for
+        // floats; trailing garbage after the last element is ignored.
+        let src = "ply\nformat ascii 1.0\nelement vertex 2\nproperty int r\nproperty double d\n\
+                   end_header\n2.0 nan\n+3 -inf\ntrailing garbage\n";
+        let p = read_ok(src.as_bytes());
+        assert_eq!(p.scalar_column("vertex", "r").unwrap(), vec![2.0, 3.0]);
+        let d = p.scalar_column("vertex", "d").unwrap();
+        assert!(d[0].is_nan() && d[1] == f64::NEG_INFINITY);
+    }
+
+    #[test]
+    fn trailing_garbage_after_binary_is_ignored() {
+        let head = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty short a\n\
+                    end_header\n";
+        let p = read_ok(&ply(head, &[1, 2, 3, 4, 5]));
+        assert_eq!(p.scalar_column("vertex", "a").unwrap(), vec![513.0]);
+    }
+
+    #[test]
+    fn missing_file_is_io_error_with_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("nope.ply");
+        match PlyFile::read_path(&p) {
+            Err(Error::Io { path, .. }) => assert_eq!(path, p),
+            other => panic!("expected io error, got {other:?}"),
+        }
+        let msg = PlyFile::read_path(&p).unwrap_err().to_string();
+        assert!(msg.contains("nope.ply"), "{msg}");
+    }
+
+    #[test]
+    fn vertex_xyz_any_types_and_order() {
+        let z = [1.0, 2.0];
+        let y = [-0.5, 0.25];
+        let x = [-300.0, 7.0];
+        let p = PlyFile::from_vertex_columns(
+            &[
+                ("z", ScalarType::U8, &z),
+                ("y", ScalarType::F64, &y),
+                ("w", ScalarType::F32, &y),
+                ("x", ScalarType::I16, &x),
+            ],
+            &[],
+        )
+        .unwrap();
+        assert_eq!(
+            p.vertex_xyz().unwrap(),
+            vec![[-300.0, -0.5, 1.0], [7.0, 0.25, 2.0]]
+        );
+        let q = PlyFile::from_vertex_columns(
+            &[
+                ("x", ScalarType::F64, &x),
+                ("y", ScalarType::F64, &y),
+                ("z", ScalarType::F64, &z),
+            ],
+            &[],
+        )
+        .unwrap();
+        assert_eq!(q.vertex_xyz().unwrap(), vec![[-300.0, -0.5, 1.0], [7.0, 0.25, 2.0]]);
+        let r = PlyFile::from_vertex_columns(
+            &[("x", ScalarType::F64, &x), ("y", ScalarType::F64, &y)],
+            &[],
+        )
+        .unwrap();
+        assert!(r.vertex_xyz().is_none());
+        let src = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n\
+                   property list uchar float y\nproperty float z\nend_header\n1 1 2 3\n";
+        assert!(read_ok(src.as_bytes()).vertex_xyz().is_none());
+    }
+
+    #[test]
+    fn has_property_and_missing_columns() {
+        let p = read_ok(RANGE_SCAN.as_bytes());
+        assert!(p.has_property("vertex", "x"));
+        assert!(p.has_property("range_grid", "vertex_indices"));
+        assert!(!p.has_property("vertex", "vertex_indices"));
+        assert!(!p.has_property("face", "x"));
+        assert_eq!(p.element("range_grid"), Some(1));
+        assert!(p.scalar_column("vertex", "w").is_none());
+        assert!(p.scalar_column("range_grid", "vertex_indices").is_none());
+        assert!(p.list_column("vertex", "x").is_none());
+        assert!(p.list_column("nope", "x").is_none());
+    }
+
+    #[test]
+    fn list_column_rejects_negative_and_fractional_items() {
+        let src = "ply\nformat ascii 1.0\nelement face 2\nproperty list uchar int v\n\
+                   property list uchar float w\nend_header\n1 2 1 3\n1 -1 1 0.5\n";
+        let p = read_ok(src.as_bytes());
+        assert!(p.list_column("face", "v").is_none());
+        assert!(p.list_column("face", "w").is_none());
+    }
+
+    #[test]
+    fn from_vertex_columns_rejects_bad_input() {
+        let a = [1.0, 2.0];
+        let b = [1.0];
+        assert!(PlyFile::from_vertex_columns(&[], &[]).is_err());
+        assert!(PlyFile::from_vertex_columns(
+            &[("x", ScalarType::F32, &a), ("y", ScalarType::F32, &b)],
+            &[]
+        )
+        .is_err());
+        assert!(PlyFile::from_vertex_columns(
+            &[("x", ScalarType::F32, &a), ("x", ScalarType::F32, &a)],
+            &[]
+        )
+        .is_err());
+        assert!(PlyFile::from_vertex_columns(&[("a b", ScalarType::F32, &a)], &[]).is_err());
+    }
+
+    #[test]
+    fn inconsistent_data_is_an_error_not_a_panic() {
+        let x = [1.0, 2.0, 3.0];
+        let mut p = PlyFile::from_vertex_columns(
+            &[
+                ("x", ScalarType::F32, &x),
+                ("y", ScalarType::F32, &x),
+                ("z", ScalarType::F32, &x),
+            ],
+            &["multi\nline".to_string()],
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("o.ply");
+        p.write_path(&out).unwrap();
+        assert_eq!(
+            PlyFile::read_path(&out).unwrap().header.comments,
+            vec!["multi line"]
+        );
+        p.data[0].bytes.pop();
+        assert!(p.write_path(&dir.path().join("bad.ply")).is_err());
+        assert!(!dir.path().join("bad.ply").exists());
+        assert!(p.scalar_column("vertex", "x").is_none());
+        assert!(p.vertex_xyz().is_none());
+        assert!(p.set_scalar_column("vertex", "x", ScalarType::F32, &x).is_err());
+        assert!(p.set_scalar_column("vertex", "n", ScalarType::F32, &x).is_err());
+        p.data[0].row_offsets = Some(vec![0, 5, 2, 11]);
+        assert!(p.scalar_column("vertex", "x").is_none());
+        assert!(p.write_path(&out).is_err());
+        p.data.clear();
+        assert!(p.write_path(&out).is_err());
+        assert!(p.scalar_column("vertex", "x").is_none());
+        // A list row whose stored count runs past the row.
+        let mut q = read_ok(RANGE_SCAN.as_bytes());
+        q.data[1].bytes[0] = 200;
+        assert!(q.list_column("range_grid", "vertex_indices").is_none());
+    }
+
+    /// Byte-level mutations of valid files (flips, truncations, insertions) must give `Ok` or
+    /// `Err`, never a panic or a runaway allocation.
+    #[test]
+    fn mutated_files_never_panic() {
+        let mut seeds: Vec<Vec<u8>> = vec![RANGE_SCAN.as_bytes().to_vec()];
+        let le = read_ok(RANGE_SCAN.as_bytes());
+        let dir = tempfile::tempdir().unwrap();
+        let lep = dir.path().join("le.ply");
+        le.write_path(&lep).unwrap();
+        seeds.push(std::fs::read(&lep).unwrap());
+        let mut be = std::fs::read(&lep).unwrap();
+        let pos = be.windows(20).position(|w| w == b"binary_little_endian").unwrap();
+        be.splice(pos..pos + 20, b"binary_big_endian".iter().copied());
+        seeds.push(be);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let path = dir.path().join("m.ply");
+        for i in 0..1500 {
+            let mut b = seeds[i % seeds.len()].clone();
+            for _ in 0..(1 + rnd() % 4) {
+                let at = (rnd() as usize) % b.len().max(1);
+                match rnd() % 5 {
+                    0 => b.truncate(at),
+                    1 if !b.is_empty() => b[at] = rnd() as u8,
+                    2 => b.insert(at.min(b.len()), b"0123456789 -\n\xff"[(rnd() % 14) as usize]),
+                    3 if !b.is_empty() => b[at] ^= 1 << (rnd() % 8),
+                    _ => {
+                        let digits = format!("{}", rnd());
+                        let at = at.min(b.len());
+                        b.splice(at..at, digits.bytes());
+                    }
+                }
+            }
+            std::fs::write(&path, &b).unwrap();
+            if let Ok(p) = PlyFile::read_path(&path) {
+                for (def, _) in p.header.elements.iter().zip(&p.data) {
+                    for prop in &def.props {
+                        let _ = p.scalar_column(&def.name, &prop.name);
+                        let _ = p.list_column(&def.name, &prop.name);
+                    }
+                }
+                let _ = p.vertex_xyz();
+                if i % 25 == 0 {
+                    // Writing syncs to disk: only now and then.
+                    let _ = p.write_path(&dir.path().join("w.ply"));
+                }
+            }
+        }
+    }
+
+    fn fixture(rel: &str) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(rel)
+    }
+
+    /// The binary copies of the Stanford bunny scans keep every vertex and the full
+    /// 400 x 512 range grid (see `fixtures/stanford-bunny/SOURCE.md`).
+    #[test]
+    fn fixture_stanford_bunny_counts() {
+        let scans = [
+            ("bun000", 40256),
+            ("bun045", 40097),
+            ("bun090", 30379),
+            ("bun180", 40251),
+            ("bun270", 31701),
+            ("bun315", 35336),
+            ("chin", 37738),
+            ("ear_back", 32193),
+            ("top2", 38298),
+            ("top3", 36023),
+        ];
+        for (name, n) in scans {
+            let p = PlyFile::read_path(&fixture(&format!("stanford-bunny/{name}.ply"))).unwrap();
+            assert_eq!(p.header.encoding, Encoding::BinaryLe, "{name}");
+            assert!(p.header.obj_info.iter().any(|o| o == "num_cols 512"), "{name}");
+            assert!(p.header.obj_info.iter().any(|o| o == "num_rows 400"), "{name}");
+            let xyz = p.vertex_xyz().unwrap();
+            assert_eq!(xyz.len(), n, "{name}");
+            let grid = p.list_column("range_grid", "vertex_indices").unwrap();
+            assert_eq!(grid.len(), 400 * 512, "{name}");
+            // Every vertex appears in exactly one grid cell, in grid order.
+            let idx: Vec<u32> = grid.iter().flatten().copied().collect();
+            assert!(grid.iter().all(|c| c.len() <= 1), "{name}");
+            assert_eq!(idx, (0..n as u32).collect::<Vec<_>>(), "{name}");
+        }
+        let p = PlyFile::read_path(&fixture("stanford-bunny/bun000.ply")).unwrap();
+        assert_eq!(
+            p.vertex_xyz().unwrap()[0],
+            [
+                f64::from(-0.06325f32),
+                f64::from(0.0359793f32),
+                f64::from(0.0420873f32)
+            ]
+        );
+    }
+
+    /// The 3DTK scans: 81360 points each on a 226 x 360 grid given by `row` and `col`.
+    #[test]
+    fn fixture_3dtk_counts() {
+        for name in ["scan000", "scan001", "scan002"] {
+            let p = PlyFile::read_path(&fixture(&format!("3dtk-uos-3scans/{name}.ply"))).unwrap();
+            assert_eq!(p.vertex_xyz().unwrap().len(), 81360, "{name}");
+            let row = p.scalar_column("vertex", "row").unwrap();
+            let col = p.scalar_column("vertex", "col").unwrap();
+            assert_eq!(row.iter().copied().fold(f64::MIN, f64::max), 225.0, "{name}");
+            assert_eq!(col.iter().copied().fold(f64::MIN, f64::max), 359.0, "{name}");
+            assert_eq!(row.iter().copied().fold(f64::MAX, f64::min), 0.0, "{name}");
+        }
     }
 }
