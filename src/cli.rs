@@ -49,6 +49,12 @@ pub struct MergeArgs {
     /// SSAO samples per pixel.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub samples: u32,
+    /// Horizon estimator: azimuthal directions per pixel.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub directions: u32,
+    /// Horizon estimator: steps marched per direction.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub steps: u32,
     /// Merge neighbourhood N (N×N pixels per view): 1, 3, 5, 7 or 9.
     #[arg(long, default_value_t = 1, value_parser = parse_neighbors)]
     pub neighbors: u32,
@@ -210,6 +216,8 @@ impl MergeArgs {
             radius: self.radius,
             tmax: self.tmax,
             samples: self.samples,
+            directions: self.directions,
+            steps: self.steps,
             neighbors: self.neighbors,
             dmin: self.dmin,
             dmax: self.dmax,

@@ -32,8 +32,12 @@ pub struct Config {
     pub radius: Option<f32>,
     /// `t_max` (metres); `None` = 2·radius.
     pub tmax: Option<f32>,
-    /// Samples per pixel.
+    /// Samples per pixel (paper estimator).
     pub samples: u32,
+    /// Directions per pixel (horizon estimator).
+    pub directions: u32,
+    /// Steps per direction (horizon estimator).
+    pub steps: u32,
     /// N of the N×N merge neighbourhood.
     pub neighbors: u32,
     /// `d_min` (metres); `None` = smallest depth over all scans.
@@ -71,8 +75,12 @@ pub struct ComputeParams {
     pub radius: Option<f32>,
     /// t_max; `None` = 2·radius.
     pub tmax: Option<f32>,
-    /// Samples per pixel.
+    /// Samples per pixel (paper estimator).
     pub samples: u32,
+    /// Directions per pixel (horizon estimator).
+    pub directions: u32,
+    /// Steps per direction (horizon estimator).
+    pub steps: u32,
     /// Merge neighbourhood N.
     pub neighbors: u32,
     /// d_min override.
@@ -99,6 +107,8 @@ impl Default for ComputeParams {
             radius: None,
             tmax: None,
             samples: 32,
+            directions: 8,
+            steps: 8,
             neighbors: 1,
             dmin: None,
             dmax: None,
@@ -131,6 +141,8 @@ pub struct PreparedView {
     pub depth: Vec<f32>,
     /// Normals: "input", "estimated", "input, N re-estimated".
     pub normals_note: String,
+    /// Wall time of each per-view stage (seconds): sensor, normals, gbuffer, ssao, border.
+    pub times: Vec<(&'static str, f64)>,
 }
 
 impl PreparedView {
@@ -183,6 +195,8 @@ pub struct Computed {
     pub merge: MergeParams,
     /// How the defaults were derived.
     pub defaults_note: String,
+    /// Wall time of the merge stage (seconds).
+    pub merge_s: f64,
 }
 
 /// Stage hooks: progress and timing, so the computation can run with or without bars.
@@ -227,7 +241,14 @@ pub fn robust_diagonal(scans: &[Scan]) -> f64 {
 
 /// Runs the per-view stages on one scan.
 pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> Result<PreparedView> {
+    let mut times = Vec::with_capacity(5);
+    let mut t = Instant::now();
+    let mut lap = |name: &'static str, t: &mut Instant| {
+        times.push((name, t.elapsed().as_secs_f64()));
+        *t = Instant::now();
+    };
     let sensor = sensor::setup(scan, choice)?;
+    lap("sensor", &mut t);
     let proj: Projection = sensor.projection.clone();
     let invalid_normals = scan
         .normals
@@ -256,6 +277,7 @@ pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> 
         (None, Some(est)) => (est, "estimated (PCA, k = 16)".to_string()),
         (None, None) => (vec![Vec3::Z; scan.len()], "none".into()),
     };
+    lap("normals", &mut t);
     let (pixel, depth) = gbuffer::point_pixels(&scan.points, &proj, sensor.grid_pixels.as_deref());
     let gbuf = gbuffer::rasterize(
         proj.width,
@@ -266,8 +288,11 @@ pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> 
         &normals,
         &radii,
     );
+    lap("gbuffer", &mut t);
     let ssao = ssao::compute(&gbuf, &proj, prm);
+    lap("ssao", &mut t);
     let border = crate::merge::border::border_distance(&gbuf.depth, gbuf.width, gbuf.height, proj.wrap_x);
+    lap("border", &mut t);
     Ok(PreparedView {
         sensor,
         gbuf,
@@ -277,6 +302,7 @@ pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> 
         pixel,
         depth,
         normals_note: note,
+        times,
     })
 }
 
@@ -321,6 +347,8 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         radius,
         tmax,
         samples: prm.samples,
+        directions: prm.directions,
+        steps: prm.steps,
         seed: prm.seed,
         blur: prm.blur,
     };
@@ -387,7 +415,8 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         };
         results.push((own, ao, no_sample, st));
     }
-    obs.done("merge", t0.elapsed().as_secs_f64());
+    let merge_s = t0.elapsed().as_secs_f64();
+    obs.done("merge", merge_s);
     let scans_out = views
         .into_iter()
         .zip(results)
@@ -404,6 +433,7 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         ssao: sp,
         merge: mp,
         defaults_note: note,
+        merge_s,
     })
 }
 
@@ -588,6 +618,8 @@ pub fn run(cfg: &Config) -> Result<Report> {
         radius: cfg.radius,
         tmax: cfg.tmax,
         samples: cfg.samples,
+        directions: cfg.directions,
+        steps: cfg.steps,
         neighbors: cfg.neighbors,
         dmin: cfg.dmin,
         dmax: cfg.dmax,
@@ -600,7 +632,13 @@ pub fn run(cfg: &Config) -> Result<Report> {
     };
     let t0 = Instant::now();
     let computed = compute(&scans, &prm, &obs)?;
-    report.add_time("compute", t0.elapsed().as_secs_f64());
+    for r in &computed.scans {
+        for (name, secs) in &r.view.times {
+            report.add_time(name, *secs);
+        }
+    }
+    report.add_time("merge", computed.merge_s);
+    report.add_time("compute_total", t0.elapsed().as_secs_f64());
     if !cfg.quiet {
         eprintln!(
             "radius {:.4} m, tmax {:.4} m, dmin {:.3} m, dmax {:.3} m ({})",
@@ -637,6 +675,7 @@ pub fn run(cfg: &Config) -> Result<Report> {
             if cfg.ssao_only { "ssao-only" } else { "merge" },
             match computed.ssao.estimator {
                 Estimator::Paper => "paper estimator",
+                Estimator::Horizon => "horizon estimator",
             }
         );
         write_result_ply(ply, &ao_v, cfg.gamma, cfg.color, &comment, &out)?;

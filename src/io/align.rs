@@ -1,1 +1,1046 @@
-//! Alignment files.
+//! Alignment files: the rigid pose (local → world, f64) of every scan. This module owns reading
+//! the three supported formats — Stanford scanalyze `.conf`, MeshLab project `.mlp` and a plain
+//! JSON object — finding an alignment file next to the scans, matching its entries to the scans
+//! given on the command line, checking that every pose is rigid, and writing `.mlp` projects.
+
+use crate::error::{Error, Result};
+use glam::{DMat3, DMat4, DQuat, DVec3, DVec4};
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::{Component, Path, PathBuf};
+
+/// Extensions (lowercase, without the dot) recognised as alignment files.
+pub const ALIGN_EXTENSIONS: [&str; 3] = ["conf", "mlp", "json"];
+
+/// Largest accepted `max |RᵀR − I|` of a pose's rotation block before it counts as scaled or
+/// sheared; below it the rotation is re-orthonormalised.
+pub const RIGID_TOLERANCE: f64 = 1e-3;
+
+/// Largest accepted deviation of a pose's bottom row from `(0, 0, 0, 1)`.
+pub const BOTTOM_ROW_TOLERANCE: f64 = 1e-9;
+
+/// The content of one alignment file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Alignment {
+    /// The file the poses were read from (used in error messages and to resolve relative names).
+    pub path: PathBuf,
+    /// The entries in file order.
+    pub entries: Vec<AlignEntry>,
+}
+
+/// One scan's entry in an alignment file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AlignEntry {
+    /// The scan file name exactly as written in the alignment file.
+    pub file: String,
+    /// Rigid transform from the scan's local frame to world coordinates.
+    pub pose: DMat4,
+}
+
+/// Reads an alignment file, choosing the format by extension (`.conf`, `.mlp` or `.json`,
+/// case-insensitive). Every pose is checked with [`check_rigid`]; a file without entries is an
+/// error.
+pub fn read_alignment(path: &Path) -> Result<Alignment> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let parse: fn(&Path, &str) -> Result<Vec<AlignEntry>> = match ext.as_str() {
+        "conf" => parse_conf,
+        "mlp" => parse_mlp,
+        "json" => parse_json,
+        _ => {
+            return Err(Error::align(
+                path,
+                "unknown alignment format (expected a .conf, .mlp or .json file)",
+            ))
+        }
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let entries = parse(path, &text)?;
+    if entries.is_empty() {
+        return Err(Error::align(path, "the alignment file names no scans"));
+    }
+    Ok(Alignment {
+        path: path.to_path_buf(),
+        entries,
+    })
+}
+
+/// Looks for alignment files (`.conf`, `.mlp`, `.json`, case-insensitive; hidden files skipped)
+/// in the directories holding `scans`. Exactly one candidate → `Some(it)`; none → `None`;
+/// several → [`Error::Param`] listing them and asking for `--align`.
+pub fn find_alignment_beside(scans: &[PathBuf]) -> Result<Option<PathBuf>> {
+    let mut dirs: Vec<PathBuf> = Vec::new();
+    for scan in scans {
+        let dir = match scan.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        if !dirs.contains(&dir) {
+            dirs.push(dir);
+        }
+    }
+    let mut found: Vec<PathBuf> = Vec::new();
+    for dir in &dirs {
+        let rd = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
+        let mut here = Vec::new();
+        for item in rd {
+            let item = item.map_err(|e| Error::io(dir, e))?;
+            let name = item.file_name();
+            let name = name.to_string_lossy();
+            if name.starts_with('.') {
+                continue;
+            }
+            let p = item.path();
+            let ext = p
+                .extension()
+                .map(|e| e.to_string_lossy().to_ascii_lowercase())
+                .unwrap_or_default();
+            if ALIGN_EXTENSIONS.contains(&ext.as_str()) && p.is_file() {
+                here.push(p);
+            }
+        }
+        here.sort();
+        found.extend(here);
+    }
+    match found.len() {
+        0 => Ok(None),
+        1 => Ok(found.pop()),
+        _ => {
+            let list: Vec<String> = found.iter().map(|p| p.display().to_string()).collect();
+            Err(Error::Param(format!(
+                "several alignment files beside the scans ({}); choose one with --align",
+                list.join(", ")
+            )))
+        }
+    }
+}
+
+/// Returns one pose per scan, in scan order. A scan matches the entry with the same file name;
+/// when file names are ambiguous (two entries or two scans share one), the entry's name is
+/// resolved relative to the alignment file's directory and compared with the scan's path.
+/// Errors: a scan without an entry, an entry naming a scan that was not given, an entry that
+/// appears twice, or two scans matching one entry.
+pub fn poses_for_scans(al: &Alignment, scans: &[PathBuf]) -> Result<Vec<DMat4>> {
+    let err = |msg: String| Error::align(&al.path, msg);
+
+    // Duplicate entries (same name after normalising separators and "./").
+    let mut seen: HashMap<String, usize> = HashMap::new();
+    for (i, e) in al.entries.iter().enumerate() {
+        if seen.insert(normalise_name(&e.file), i).is_some() {
+            return Err(err(format!(
+                "'{}' is named more than once in the alignment file",
+                e.file
+            )));
+        }
+    }
+
+    let entry_base: Vec<String> = al.entries.iter().map(|e| base_name(&e.file)).collect();
+    let scan_base: Vec<String> = scans
+        .iter()
+        .map(|s| {
+            s.file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        })
+        .collect();
+    let count = |names: &[String], n: &str| names.iter().filter(|m| m.as_str() == n).count();
+    let dir = al.path.parent().unwrap_or(Path::new(""));
+
+    let mut owner: Vec<Option<usize>> = vec![None; al.entries.len()];
+    let mut poses = Vec::with_capacity(scans.len());
+    for (si, scan) in scans.iter().enumerate() {
+        let base = &scan_base[si];
+        let ambiguous = count(&entry_base, base) > 1 || count(&scan_base, base) > 1;
+        let hit = if ambiguous {
+            let key = path_key(scan);
+            al.entries
+                .iter()
+                .position(|e| path_key(&dir.join(native_name(&e.file))) == key)
+        } else {
+            entry_base.iter().position(|b| b == base)
+        };
+        let Some(ei) = hit else {
+            return Err(err(format!(
+                "scan '{}' is not in the alignment file",
+                scan.display()
+            )));
+        };
+        if let Some(other) = owner[ei] {
+            return Err(err(format!(
+                "scans '{}' and '{}' both match the entry '{}'",
+                scans[other].display(),
+                scan.display(),
+                al.entries[ei].file
+            )));
+        }
+        owner[ei] = Some(si);
+        poses.push(al.entries[ei].pose);
+    }
+
+    let unused: Vec<String> = al
+        .entries
+        .iter()
+        .zip(&owner)
+        .filter(|(_, o)| o.is_none())
+        .map(|(e, _)| format!("'{}'", e.file))
+        .collect();
+    match unused.len() {
+        0 => Ok(poses),
+        1 => Err(err(format!(
+            "{} is named in the alignment file but was not given",
+            unused[0]
+        ))),
+        _ => Err(err(format!(
+            "{} are named in the alignment file but were not given",
+            unused.join(", ")
+        ))),
+    }
+}
+
+/// Checks that `m` is a rigid transform and returns it with an exactly orthonormal rotation.
+///
+/// The bottom row must be `(0, 0, 0, 1)` within [`BOTTOM_ROW_TOLERANCE`] and every entry finite.
+/// With `R` the upper 3×3 block: `det R < 0` is rejected as a reflection;
+/// `max |RᵀR − I| > `[`RIGID_TOLERANCE`] is rejected as scale or shear; otherwise `R` is replaced
+/// by its nearest rotation (Newton polar iteration) and the translation is kept. `path` and
+/// `what` (the scan's name) only go into error messages.
+pub fn check_rigid(m: DMat4, path: &Path, what: &str) -> Result<DMat4> {
+    if !m.is_finite() {
+        return Err(Error::align(
+            path,
+            format!("pose of '{what}' has a non-finite entry"),
+        ));
+    }
+    let bottom = m.row(3);
+    if (bottom - DVec4::W).abs().max_element() > BOTTOM_ROW_TOLERANCE {
+        return Err(Error::align(
+            path,
+            format!("pose of '{what}' has a projective bottom row"),
+        ));
+    }
+    let r = DMat3::from_mat4(m);
+    let det = r.determinant();
+    if det < 0.0 {
+        return Err(Error::align(
+            path,
+            format!("pose of '{what}' is a reflection (determinant {det:.6})"),
+        ));
+    }
+    let dev = orthogonality_error(r);
+    if !(dev <= RIGID_TOLERANCE && det > 0.0) {
+        return Err(Error::align(
+            path,
+            format!(
+                "pose of '{what}' has scale or shear (max |R^T R - I| = {dev:.3e}, \
+                 more than {RIGID_TOLERANCE:e} allowed)"
+            ),
+        ));
+    }
+    let r = nearest_rotation(r);
+    Ok(DMat4::from_cols(
+        r.x_axis.extend(0.0),
+        r.y_axis.extend(0.0),
+        r.z_axis.extend(0.0),
+        m.w_axis.truncate().extend(1.0),
+    ))
+}
+
+/// Writes `entries` as a MeshLab project (`.mlp`) atomically: one `MLMesh` per entry with the
+/// entry's file as `filename`, its base name as `label`, and the pose as a row-major
+/// `MLMatrix44` printed with round-trip precision.
+pub fn write_mlp(path: &Path, entries: &[AlignEntry]) -> Result<()> {
+    crate::io::atomic::write_atomic(path, |w| {
+        writeln!(w, "<!DOCTYPE MeshLabDocument>")?;
+        writeln!(w, "<MeshLabProject>")?;
+        writeln!(w, " <MeshGroup>")?;
+        for e in entries {
+            let file = quick_xml::escape::escape(e.file.as_str());
+            let label = base_name(&e.file);
+            let label = quick_xml::escape::escape(label.as_str());
+            writeln!(w, "  <MLMesh label=\"{label}\" filename=\"{file}\">")?;
+            writeln!(w, "   <MLMatrix44>")?;
+            for i in 0..4 {
+                let row = e.pose.row(i);
+                writeln!(w, "{:?} {:?} {:?} {:?} ", row.x, row.y, row.z, row.w)?;
+            }
+            writeln!(w, "</MLMatrix44>")?;
+            writeln!(w, "  </MLMesh>")?;
+        }
+        writeln!(w, " </MeshGroup>")?;
+        writeln!(w, " <RasterGroup/>")?;
+        writeln!(w, "</MeshLabProject>")?;
+        Ok(())
+    })
+}
+
+/// `max |RᵀR − I|` over the nine entries.
+fn orthogonality_error(r: DMat3) -> f64 {
+    let d = r.transpose() * r - DMat3::IDENTITY;
+    d.x_axis
+        .abs()
+        .max(d.y_axis.abs())
+        .max(d.z_axis.abs())
+        .max_element()
+}
+
+/// Nearest rotation to a nearly orthonormal `r` with positive determinant: Newton iteration for
+/// the polar factor, `R ← ½(R + R⁻ᵀ)`, which converges quadratically.
+fn nearest_rotation(mut r: DMat3) -> DMat3 {
+    for _ in 0..20 {
+        let next = (r + r.inverse().transpose()) * 0.5;
+        let change = (next - r)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, v| a.max(v.abs()));
+        r = next;
+        if change < 1e-16 {
+            break;
+        }
+    }
+    r
+}
+
+/// Parses a Stanford scanalyze `.conf` file.
+fn parse_conf(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let lineno = i + 1;
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let tok: Vec<&str> = line.split_whitespace().collect();
+        if tok[0] != "bmesh" {
+            continue; // "camera" and other keywords carry nothing we need
+        }
+        let bad = |msg: String| Error::align(path, format!("line {lineno}: {msg}"));
+        if tok.len() != 9 {
+            return Err(bad(format!(
+                "a bmesh line needs a file name and 7 numbers (tx ty tz qx qy qz qw), \
+                 found {} fields after 'bmesh'",
+                tok.len() - 1
+            )));
+        }
+        let mut v = [0.0f64; 7];
+        for (slot, t) in v.iter_mut().zip(&tok[2..]) {
+            *slot = parse_number(t).map_err(bad)?;
+        }
+        let t = DVec3::new(v[0], v[1], v[2]);
+        let q = DQuat::from_xyzw(v[3], v[4], v[5], v[6]);
+        let n = q.length();
+        if !n.is_finite() || n < 1e-6 {
+            return Err(bad(format!(
+                "the quaternion of '{}' has norm {n:e}, not a rotation",
+                tok[1]
+            )));
+        }
+        // scanalyze convention: world = R(q)ᵀ · p + t, i.e. rotate by the conjugate quaternion.
+        let r = DMat3::from_quat(q / n).transpose();
+        let pose = DMat4::from_cols(
+            r.x_axis.extend(0.0),
+            r.y_axis.extend(0.0),
+            r.z_axis.extend(0.0),
+            t.extend(1.0),
+        );
+        let pose = check_rigid(pose, path, tok[1])?;
+        out.push(AlignEntry {
+            file: tok[1].to_string(),
+            pose,
+        });
+    }
+    Ok(out)
+}
+
+/// Parses a MeshLab project (`.mlp`).
+fn parse_mlp(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
+    use quick_xml::events::{BytesStart, Event};
+
+    let line_of = |pos: u64| {
+        let pos = usize::try_from(pos).unwrap_or(usize::MAX).min(text.len());
+        text.as_bytes()[..pos]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count()
+            + 1
+    };
+    let name_of = |e: &BytesStart, reader_pos: u64| -> Result<String> {
+        let mut filename = None;
+        let mut label = None;
+        for a in e.attributes() {
+            let a = a.map_err(|err| {
+                Error::align(path, format!("line {}: {err}", line_of(reader_pos)))
+            })?;
+            let v = a.unescape_value().map_err(|err| {
+                Error::align(path, format!("line {}: {err}", line_of(reader_pos)))
+            })?;
+            match a.key.as_ref() {
+                b"filename" => filename = Some(v.into_owned()),
+                b"label" => label = Some(v.into_owned()),
+                _ => {}
+            }
+        }
+        filename
+            .filter(|s| !s.trim().is_empty())
+            .or(label.filter(|s| !s.trim().is_empty()))
+            .ok_or_else(|| {
+                Error::align(
+                    path,
+                    format!(
+                        "line {}: an MLMesh has neither a filename nor a label",
+                        line_of(reader_pos)
+                    ),
+                )
+            })
+    };
+
+    let mut reader = quick_xml::Reader::from_str(text);
+    let mut out = Vec::new();
+    // (file name, line of the MLMesh, matrix text if one was seen)
+    let mut mesh: Option<(String, usize, Option<String>)> = None;
+    let mut matrix: Option<String> = None;
+    loop {
+        let pos = reader.buffer_position();
+        let ev = reader.read_event().map_err(|e| {
+            Error::align(
+                path,
+                format!("line {}: {e}", line_of(reader.error_position())),
+            )
+        })?;
+        match ev {
+            Event::Start(e) if e.local_name().as_ref() == b"MLMesh" => {
+                mesh = Some((name_of(&e, pos)?, line_of(pos), None));
+            }
+            Event::Empty(e) if e.local_name().as_ref() == b"MLMesh" => {
+                let name = name_of(&e, pos)?;
+                return Err(Error::align(
+                    path,
+                    format!("line {}: mesh '{name}' has no MLMatrix44", line_of(pos)),
+                ));
+            }
+            Event::Start(e) if e.local_name().as_ref() == b"MLMatrix44" => {
+                if mesh.is_some() {
+                    matrix = Some(String::new());
+                }
+            }
+            Event::Text(t) => {
+                if let Some(m) = matrix.as_mut() {
+                    let s = t
+                        .unescape()
+                        .map_err(|e| Error::align(path, format!("line {}: {e}", line_of(pos))))?;
+                    m.push_str(&s);
+                    m.push(' ');
+                }
+            }
+            Event::End(e) if e.local_name().as_ref() == b"MLMatrix44" => {
+                if let (Some(m), Some(cur)) = (matrix.take(), mesh.as_mut()) {
+                    cur.2 = Some(m);
+                }
+            }
+            Event::End(e) if e.local_name().as_ref() == b"MLMesh" => {
+                if let Some((file, line, m)) = mesh.take() {
+                    let Some(m) = m else {
+                        return Err(Error::align(
+                            path,
+                            format!("line {line}: mesh '{file}' has no MLMatrix44"),
+                        ));
+                    };
+                    let nums: Vec<&str> = m.split_whitespace().collect();
+                    let pose =
+                        matrix_from_row_major(&nums, |t| parse_number(t)).map_err(|msg| {
+                            Error::align(path, format!("line {line}: matrix of '{file}': {msg}"))
+                        })?;
+                    let pose = check_rigid(pose, path, &file)?;
+                    out.push(AlignEntry { file, pose });
+                }
+            }
+            Event::Eof => break,
+            _ => {}
+        }
+    }
+    Ok(out)
+}
+
+/// Parses a JSON object `{ "file": [16 numbers, row-major], ... }`, keeping file order and
+/// duplicate keys (so they can be reported).
+fn parse_json(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
+    let obj: JsonEntries = serde_json::from_str(text).map_err(|e| {
+        Error::align(
+            path,
+            format!("expected a JSON object of 16-number row-major matrices: {e}"),
+        )
+    })?;
+    let mut out = Vec::with_capacity(obj.0.len());
+    for (file, value) in obj.0 {
+        let bad = |msg: String| Error::align(path, format!("matrix of '{file}': {msg}"));
+        let serde_json::Value::Array(items) = value else {
+            return Err(bad("expected an array of 16 numbers".into()));
+        };
+        let pose = matrix_from_row_major(&items, |v| {
+            v.as_f64()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| format!("{v} is not a finite number"))
+        })
+        .map_err(bad)?;
+        let pose = check_rigid(pose, path, &file)?;
+        out.push(AlignEntry { file, pose });
+    }
+    Ok(out)
+}
+
+/// A JSON object read as an ordered list of (key, value) pairs.
+struct JsonEntries(Vec<(String, serde_json::Value)>);
+
+impl<'de> serde::Deserialize<'de> for JsonEntries {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = JsonEntries;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("an object mapping scan file names to 16 numbers")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> std::result::Result<JsonEntries, A::Error> {
+                let mut v = Vec::new();
+                while let Some(kv) = map.next_entry::<String, serde_json::Value>()? {
+                    v.push(kv);
+                }
+                Ok(JsonEntries(v))
+            }
+        }
+        d.deserialize_map(V)
+    }
+}
+
+/// Builds a matrix from 16 row-major items, converting each with `num`.
+fn matrix_from_row_major<T>(
+    items: &[T],
+    num: impl Fn(&T) -> std::result::Result<f64, String>,
+) -> std::result::Result<DMat4, String> {
+    if items.len() != 16 {
+        return Err(format!("expected 16 numbers, found {}", items.len()));
+    }
+    let mut a = [0.0f64; 16];
+    for (slot, it) in a.iter_mut().zip(items) {
+        *slot = num(it)?;
+    }
+    // `from_cols_array` reads column-major; transposing reinterprets the array as rows.
+    Ok(DMat4::from_cols_array(&a).transpose())
+}
+
+/// Parses one finite number.
+fn parse_number(t: &str) -> std::result::Result<f64, String> {
+    match t.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("'{t}' is not a finite number")),
+    }
+}
+
+/// The last path component of a name as written in an alignment file (`/` or `\` separated).
+fn base_name(file: &str) -> String {
+    file.rsplit(['/', '\\']).next().unwrap_or(file).to_string()
+}
+
+/// A name with `\` turned into `/` and `./` components removed, for duplicate detection.
+fn normalise_name(file: &str) -> String {
+    file.replace('\\', "/")
+        .split('/')
+        .filter(|c| !c.is_empty() && *c != ".")
+        .collect::<Vec<_>>()
+        .join("/")
+}
+
+/// A name from an alignment file as a native relative path.
+fn native_name(file: &str) -> PathBuf {
+    file.split(['/', '\\']).collect()
+}
+
+/// A comparable form of a path: canonical if it exists, else absolute and lexically normalised.
+fn path_key(p: &Path) -> PathBuf {
+    if let Ok(c) = std::fs::canonicalize(p) {
+        return c;
+    }
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut out = PathBuf::new();
+    for c in abs.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            other => out.push(other.as_os_str()),
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::fs;
+
+    fn manifest(rel: &str) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
+    }
+
+    fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+        let p = dir.join(name);
+        fs::write(&p, text).unwrap();
+        p
+    }
+
+    fn max_diff(a: DMat4, b: DMat4) -> f64 {
+        (a - b)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()))
+    }
+
+    fn msg(e: Error) -> String {
+        e.to_string()
+    }
+
+    fn rows(r: [[f64; 4]; 4]) -> DMat4 {
+        DMat4::from_cols_array_2d(&r).transpose()
+    }
+
+    #[test]
+    fn conf_quaternion_uses_transpose_convention() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let p = write(
+            dir.path(),
+            "a.conf",
+            &format!(
+                "# comment\ncamera 0 0 1 0 0 0 1\n\nbmesh id.ply 0 0 0 0 0 0 1\n\
+                 bmesh rz.ply 1 2 3 0 0 {s} {s}\nfoo bar\n"
+            ),
+        );
+        let al = read_alignment(&p).unwrap();
+        assert_eq!(al.entries.len(), 2);
+        assert_eq!(al.entries[0].file, "id.ply");
+        assert_eq!(al.entries[0].pose, DMat4::IDENTITY);
+        // R(q) for 90° about z is [[0,-1,0],[1,0,0],[0,0,1]]; the pose uses its transpose.
+        let want = rows([
+            [0.0, 1.0, 0.0, 1.0],
+            [-1.0, 0.0, 0.0, 2.0],
+            [0.0, 0.0, 1.0, 3.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]);
+        assert!(max_diff(al.entries[1].pose, want) < 1e-15);
+        // The local x axis lands on world -y, shifted by t.
+        let w = al.entries[1].pose.transform_point3(DVec3::X);
+        assert!((w - DVec3::new(1.0, 1.0, 3.0)).length() < 1e-15);
+    }
+
+    #[test]
+    fn conf_quaternion_is_normalised() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "a.conf", "bmesh a.ply 0 0 0 0 0 2 2\n");
+        let pose = read_alignment(&p).unwrap().entries[0].pose;
+        assert!(
+            max_diff(
+                pose,
+                rows([
+                    [0.0, 1.0, 0.0, 0.0],
+                    [-1.0, 0.0, 0.0, 0.0],
+                    [0.0, 0.0, 1.0, 0.0],
+                    [0.0, 0.0, 0.0, 1.0],
+                ])
+            ) < 1e-15
+        );
+    }
+
+    #[test]
+    fn conf_errors_name_the_line() {
+        let dir = tempfile::tempdir().unwrap();
+        for (text, want) in [
+            (
+                "bmesh a.ply 0 0 0 0 0 0 1\nbmesh b.ply 0 0 x 0 0 0 1\n",
+                "line 2",
+            ),
+            ("bmesh a.ply 0 0 0 0 0 1\n", "7 numbers"),
+            ("\n\nbmesh a.ply 0 0 0 0 0 0 0\n", "line 3"),
+            ("bmesh a.ply 0 0 0 0 0 0 NaN\n", "not a finite number"),
+            ("camera 0 0 0 0 0 0 1\n", "names no scans"),
+        ] {
+            let p = write(dir.path(), "bad.conf", text);
+            let e = msg(read_alignment(&p).unwrap_err());
+            assert!(e.contains(want), "{text:?}: {e}");
+            assert!(e.contains("bad.conf"), "{e}");
+        }
+    }
+
+    const MLP: &str = r#"<!DOCTYPE MeshLabDocument>
+<MeshLabProject>
+ <MeshGroup>
+  <MLMesh label="first" filename="sub/a.ply">
+   <MLMatrix44>
+1 0 0 0
+0 1 0 0
+0 0 1 0
+0 0 0 1
+</MLMatrix44>
+  </MLMesh>
+  <MLMesh label="b.ply">
+   <MLMatrix44>
+0 -1 0 10
+1 0 0 20
+0 0 1 30
+0 0 0 1 </MLMatrix44>
+  </MLMesh>
+ </MeshGroup>
+ <RasterGroup/>
+</MeshLabProject>
+"#;
+
+    #[test]
+    fn mlp_parse_row_major_and_label_fallback() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "proj.MLP", MLP);
+        let al = read_alignment(&p).unwrap();
+        assert_eq!(al.entries.len(), 2);
+        assert_eq!(al.entries[0].file, "sub/a.ply");
+        assert_eq!(al.entries[0].pose, DMat4::IDENTITY);
+        assert_eq!(al.entries[1].file, "b.ply");
+        let m = al.entries[1].pose;
+        assert_eq!(m.w_axis, glam::DVec4::new(10.0, 20.0, 30.0, 1.0));
+        assert_eq!(m.transform_point3(DVec3::X), DVec3::new(10.0, 21.0, 30.0));
+    }
+
+    #[test]
+    fn mlp_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifteen = MLP.replace("0 0 1 30\n", "0 0 1\n");
+        let word = MLP.replace("0 0 1 30", "0 0 one 30");
+        let no_matrix = "<MeshLabProject><MeshGroup><MLMesh filename=\"a.ply\"></MLMesh>\
+                         </MeshGroup></MeshLabProject>";
+        let broken = "<MeshLabProject><MeshGroup></MLMesh></MeshLabProject>";
+        for (text, want) in [
+            (fifteen.as_str(), "expected 16 numbers, found 15"),
+            (word.as_str(), "'one' is not a finite number"),
+            (no_matrix, "no MLMatrix44"),
+            (broken, "line 1"),
+        ] {
+            let p = write(dir.path(), "bad.mlp", text);
+            let e = msg(read_alignment(&p).unwrap_err());
+            assert!(e.contains(want), "{e}");
+        }
+    }
+
+    #[test]
+    fn json_parse() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(
+            dir.path(),
+            "a.Json",
+            r#"{ "x.ply": [0,-1,0,1, 1,0,0,2, 0,0,1,3, 0,0,0,1], "y.ply": [1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1] }"#,
+        );
+        let al = read_alignment(&p).unwrap();
+        assert_eq!(al.entries.len(), 2);
+        assert_eq!(al.entries[0].file, "x.ply");
+        assert_eq!(
+            al.entries[0].pose.w_axis,
+            glam::DVec4::new(1.0, 2.0, 3.0, 1.0)
+        );
+        assert_eq!(
+            al.entries[0].pose.transform_vector3(DVec3::X),
+            DVec3::new(0.0, 1.0, 0.0)
+        );
+        assert_eq!(al.entries[1].pose, DMat4::IDENTITY);
+    }
+
+    #[test]
+    fn json_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        for (text, want) in [
+            ("[1, 2]", "expected a JSON object"),
+            ("{\"a.ply\": 3}", "expected an array of 16 numbers"),
+            ("{\"a.ply\": [1,0,0,0,0,1,0,0,0,0,1,0,0,0,0]}", "found 15"),
+            (
+                "{\"a.ply\": [1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,\"1\"]}",
+                "not a finite",
+            ),
+            (
+                "{\"a.ply\": [1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1e999]}",
+                "a.json",
+            ),
+            ("{}", "names no scans"),
+            (
+                "{\"a.ply\": [1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1",
+                "expected a JSON object",
+            ),
+        ] {
+            let p = write(dir.path(), "a.json", text);
+            let e = msg(read_alignment(&p).unwrap_err());
+            assert!(e.contains(want), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn missing_file_and_unknown_extension() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("none.conf");
+        let e = read_alignment(&p).unwrap_err();
+        assert!(matches!(e, Error::Io { .. }), "{e}");
+        assert!(msg(e).contains("none.conf"));
+        let p = write(dir.path(), "poses.txt", "bmesh a.ply 0 0 0 0 0 0 1\n");
+        let e = msg(read_alignment(&p).unwrap_err());
+        assert!(
+            e.contains("poses.txt") && e.contains("unknown alignment format"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn non_rigid_poses_are_rejected() {
+        let p = Path::new("x.mlp");
+        let scale = DMat4::from_scale(DVec3::splat(1.1));
+        let e = msg(check_rigid(scale, p, "s.ply").unwrap_err());
+        assert!(
+            e.contains("'s.ply' has scale or shear") && e.contains("2.100e-1"),
+            "{e}"
+        );
+        let shear = rows([
+            [1.0, 0.1, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]);
+        let e = msg(check_rigid(shear, p, "sh.ply").unwrap_err());
+        assert!(
+            e.contains("scale or shear") && e.contains("1.000e-1"),
+            "{e}"
+        );
+        let mirror = DMat4::from_scale(DVec3::new(1.0, 1.0, -1.0));
+        let e = msg(check_rigid(mirror, p, "m.ply").unwrap_err());
+        assert!(e.contains("'m.ply' is a reflection"), "{e}");
+        let mut proj = DMat4::IDENTITY;
+        proj.x_axis.w = 0.5;
+        let e = msg(check_rigid(proj, p, "p.ply").unwrap_err());
+        assert!(e.contains("projective bottom row"), "{e}");
+        let mut nan = DMat4::IDENTITY;
+        nan.w_axis.x = f64::NAN;
+        assert!(msg(check_rigid(nan, p, "n.ply").unwrap_err()).contains("non-finite"));
+        let zero = DMat4::from_scale(DVec3::ZERO);
+        assert!(msg(check_rigid(zero, p, "z.ply").unwrap_err()).contains("scale or shear"));
+        // ... and they are rejected when read from a file too.
+        let dir = tempfile::tempdir().unwrap();
+        let f = write(
+            dir.path(),
+            "s.json",
+            r#"{"a.ply": [1.1,0,0,0, 0,1.1,0,0, 0,0,1.1,0, 0,0,0,1]}"#,
+        );
+        assert!(msg(read_alignment(&f).unwrap_err()).contains("scale or shear"));
+    }
+
+    #[test]
+    fn tiny_non_orthogonality_is_repaired() {
+        let r = DMat3::from_quat(DQuat::from_axis_angle(
+            DVec3::new(1.0, 2.0, 3.0).normalize(),
+            0.7,
+        ));
+        let noisy = DMat3::from_cols(
+            r.x_axis + DVec3::new(1e-6, -2e-7, 5e-7),
+            r.y_axis * (1.0 + 1e-6),
+            r.z_axis + DVec3::new(-3e-7, 1e-6, 0.0),
+        );
+        let t = DVec3::new(4.0, -5.0, 6.5);
+        let m = DMat4::from_cols(
+            noisy.x_axis.extend(0.0),
+            noisy.y_axis.extend(0.0),
+            noisy.z_axis.extend(0.0),
+            t.extend(1.0),
+        );
+        assert!(orthogonality_error(noisy) > 1e-7);
+        let fixed = check_rigid(m, Path::new("x"), "x").unwrap();
+        let fr = DMat3::from_mat4(fixed);
+        assert!(
+            orthogonality_error(fr) < 1e-15,
+            "{}",
+            orthogonality_error(fr)
+        );
+        assert!((fr.determinant() - 1.0).abs() < 1e-15);
+        assert!(max_diff(fixed, m) < 3e-6);
+        assert_eq!(fixed.w_axis, t.extend(1.0));
+        assert_eq!(fixed.row(3), glam::DVec4::W);
+    }
+
+    fn al(path: &Path, names: &[&str]) -> Alignment {
+        Alignment {
+            path: path.to_path_buf(),
+            entries: names
+                .iter()
+                .enumerate()
+                .map(|(i, n)| AlignEntry {
+                    file: n.to_string(),
+                    pose: DMat4::from_translation(DVec3::splat(i as f64)),
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn matching_by_name_in_scan_order() {
+        let a = al(Path::new("/d/x.conf"), &["a.ply", "sub/b.ply", "c.ply"]);
+        let scans = [
+            PathBuf::from("/e/c.ply"),
+            PathBuf::from("a.ply"),
+            PathBuf::from("/q/b.ply"),
+        ];
+        let p = poses_for_scans(&a, &scans).unwrap();
+        let tx: Vec<f64> = p.iter().map(|m| m.w_axis.x).collect();
+        assert_eq!(tx, vec![2.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn matching_errors() {
+        let a = al(Path::new("/d/x.conf"), &["bun000.ply", "bun090.ply"]);
+        let e = msg(poses_for_scans(&a, &[PathBuf::from("/d/bun000.ply")]).unwrap_err());
+        assert!(
+            e.contains("'bun090.ply' is named in the alignment file but was not given"),
+            "{e}"
+        );
+        assert!(e.contains("x.conf"), "{e}");
+        let scans = [
+            PathBuf::from("/d/bun000.ply"),
+            PathBuf::from("/d/bun090.ply"),
+            PathBuf::from("/d/x.ply"),
+        ];
+        let e = msg(poses_for_scans(&a, &scans).unwrap_err());
+        assert!(
+            e.contains("scan '/d/x.ply' is not in the alignment file"),
+            "{e}"
+        );
+        let dup = al(Path::new("/d/x.conf"), &["a.ply", "./a.ply"]);
+        let e = msg(poses_for_scans(&dup, &[PathBuf::from("/d/a.ply")]).unwrap_err());
+        assert!(e.contains("'./a.ply' is named more than once"), "{e}");
+        let one = al(Path::new("/d/x.conf"), &["a.ply"]);
+        let e = msg(poses_for_scans(
+            &one,
+            &[PathBuf::from("/d/a.ply"), PathBuf::from("/d/./a.ply")],
+        )
+        .unwrap_err());
+        assert!(e.contains("both match"), "{e}");
+    }
+
+    #[test]
+    fn ambiguous_names_fall_back_to_relative_paths() {
+        let a = al(Path::new("/d/x.mlp"), &["l/s.ply", "r\\s.ply", "t.ply"]);
+        let scans = [
+            PathBuf::from("/d/r/s.ply"),
+            PathBuf::from("/d/l/../l/s.ply"),
+            PathBuf::from("/other/t.ply"),
+        ];
+        let p = poses_for_scans(&a, &scans).unwrap();
+        let tx: Vec<f64> = p.iter().map(|m| m.w_axis.x).collect();
+        assert_eq!(tx, vec![1.0, 0.0, 2.0]);
+        let e = msg(poses_for_scans(&a, &[PathBuf::from("/d/q/s.ply")]).unwrap_err());
+        assert!(
+            e.contains("scan '/d/q/s.ply' is not in the alignment file"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn find_alignment_beside_counts_candidates() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let scan = write(d, "s.ply", "");
+        write(d, "notes.txt", "");
+        write(d, ".hidden.json", "");
+        assert_eq!(
+            find_alignment_beside(std::slice::from_ref(&scan)).unwrap(),
+            None
+        );
+        let conf = write(d, "poses.CONF", "");
+        assert_eq!(
+            find_alignment_beside(&[scan.clone(), scan.clone()]).unwrap(),
+            Some(conf)
+        );
+        write(d, "poses.mlp", "");
+        let e = find_alignment_beside(&[scan]).unwrap_err();
+        assert!(matches!(e, Error::Param(_)));
+        let e = msg(e);
+        assert!(
+            e.contains("poses.CONF") && e.contains("poses.mlp") && e.contains("--align"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn write_mlp_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let r = DMat3::from_quat(DQuat::from_axis_angle(
+            DVec3::new(-1.0, 0.5, 2.0).normalize(),
+            2.1,
+        ));
+        let pose = DMat4::from_cols(
+            r.x_axis.extend(0.0),
+            r.y_axis.extend(0.0),
+            r.z_axis.extend(0.0),
+            DVec4::new(1e-7, -123.456, 1.0 / 3.0, 1.0),
+        );
+        let pose = check_rigid(pose, Path::new("x"), "x").unwrap();
+        let entries = vec![
+            AlignEntry {
+                file: "a&b <1>.ply".into(),
+                pose,
+            },
+            AlignEntry {
+                file: "sub/c.ply".into(),
+                pose: DMat4::IDENTITY,
+            },
+        ];
+        let p = dir.path().join("out.mlp");
+        write_mlp(&p, &entries).unwrap();
+        let back = read_alignment(&p).unwrap();
+        assert_eq!(back.entries.len(), 2);
+        assert_eq!(back.entries[0].file, "a&b <1>.ply");
+        assert_eq!(back.entries[1].file, "sub/c.ply");
+        assert!(max_diff(back.entries[0].pose, pose) < 1e-15);
+        assert_eq!(back.entries[1].pose, DMat4::IDENTITY);
+    }
+
+    #[test]
+    fn real_bunny_conf() {
+        let p = manifest("fixtures/stanford-bunny/bun.conf");
+        let al = read_alignment(&p).unwrap();
+        assert_eq!(al.entries.len(), 10);
+        assert_eq!(al.entries[0].file, "bun000.ply");
+        assert_eq!(al.entries[0].pose, DMat4::IDENTITY);
+        let names: Vec<&str> = al.entries.iter().map(|e| e.file.as_str()).collect();
+        assert!(names.contains(&"ear_back.ply") && names.contains(&"chin.ply"));
+        // bun180: q ≈ (0, 1, 0, 0), a half turn about y, so local x maps to about world -x.
+        let b180 = al
+            .entries
+            .iter()
+            .find(|e| e.file == "bun180.ply")
+            .unwrap()
+            .pose;
+        assert!((b180.transform_vector3(DVec3::X) - DVec3::NEG_X).length() < 1e-2);
+        let scans: Vec<PathBuf> = names.iter().rev().map(|n| p.with_file_name(n)).collect();
+        let poses = poses_for_scans(&al, &scans).unwrap();
+        assert_eq!(poses.len(), 10);
+        assert_eq!(poses[9], DMat4::IDENTITY);
+    }
+
+    #[test]
+    fn real_3dtk_mlp_and_json_agree() {
+        let mlp = read_alignment(&manifest("fixtures/3dtk-uos-3scans/alignment.mlp")).unwrap();
+        let json =
+            read_alignment(&manifest("fixtures/3dtk-uos-3scans/json/alignment.json")).unwrap();
+        assert_eq!(mlp.entries.len(), 3);
+        assert_eq!(json.entries.len(), 3);
+        for (a, b) in mlp.entries.iter().zip(&json.entries) {
+            assert_eq!(a.file, b.file);
+            assert!(max_diff(a.pose, b.pose) < 1e-12, "{}", a.file);
+        }
+        assert_eq!(mlp.entries[0].pose, DMat4::IDENTITY);
+        let t = mlp.entries[1].pose.w_axis;
+        assert_eq!(t, glam::DVec4::new(1.56796, 0.036331, -0.0908315, 1.0));
+    }
+}

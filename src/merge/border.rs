@@ -1,1 +1,733 @@
-//! Border distance field.
+//! Depth-discontinuity distance field for the multi-view merge. This module owns the border
+//! term's inputs: the relative Laplacian of a scan's depth map, the edge mask (Laplacian above
+//! its 0.95 quantile) and, for every pixel, the Euclidean pixel distance `d_b` to the nearest
+//! edge, computed by jump flooding (Rong & Tan 2006) with extra passes that make it exact in
+//! practice. Depth maps are row-major `width × height` `f32`; empty pixels are non-finite
+//! (normally `f32::INFINITY`). With `wrap_x` the map is a 360° panorama whose left and right
+//! columns are neighbours.
+
+use rayon::prelude::*;
+use std::borrow::Cow;
+
+/// Quantile of the Laplacian above which pixels are edges in [`border_distance`].
+pub const EDGE_QUANTILE: f32 = 0.95;
+
+/// Laplacian values at or below this are never edges (a flat map has no edges).
+pub const EDGE_MIN_LAPLACIAN: f32 = 1e-6;
+
+/// Rows per rayon task in the per-pixel passes.
+const ROWS_PER_TASK: usize = 4;
+
+/// Relative Laplacian of a depth map.
+///
+/// For a valid pixel `x` (finite depth): `L = |Σ_nb (D(nb) − D(x))| / D(x)` over the 4
+/// neighbours, with `D(x) ≤ 0` replaced by `1e-6` in the denominator. A neighbour that is empty
+/// or outside the image counts as background at `D_far = 2 × (largest finite depth of the map)`,
+/// so coverage borders are discontinuities. With `wrap_x` the left and right columns are
+/// neighbours. Empty pixels get `L = 0`; the result is never NaN (it is clamped to `f32::MAX`).
+/// A `depth` slice of the wrong length is truncated or padded with empty pixels; the result has
+/// `width × height` values.
+pub fn laplacian(depth: &[f32], width: usize, height: usize, wrap_x: bool) -> Vec<f32> {
+    let n = width.saturating_mul(height);
+    if n == 0 {
+        return Vec::new();
+    }
+    let depth = fit(depth, n, f32::INFINITY);
+    let max = depth
+        .par_iter()
+        .copied()
+        .filter(|d| d.is_finite())
+        .reduce(|| f32::NEG_INFINITY, f32::max);
+    if max == f32::NEG_INFINITY {
+        return vec![0.0; n];
+    }
+    let far = 2.0 * f64::from(max);
+    let depth = &depth[..];
+    let mut out = vec![0.0f32; n];
+    out.par_chunks_mut(width)
+        .enumerate()
+        .with_min_len(ROWS_PER_TASK)
+        .for_each(|(y, row)| {
+            let sample = |x: usize, y: usize| {
+                let v = depth[y * width + x];
+                if v.is_finite() {
+                    f64::from(v)
+                } else {
+                    far
+                }
+            };
+            for (x, l) in row.iter_mut().enumerate() {
+                let d = depth[y * width + x];
+                if !d.is_finite() {
+                    continue;
+                }
+                let left = if x > 0 {
+                    sample(x - 1, y)
+                } else if wrap_x {
+                    sample(width - 1, y)
+                } else {
+                    far
+                };
+                let right = if x + 1 < width {
+                    sample(x + 1, y)
+                } else if wrap_x {
+                    sample(0, y)
+                } else {
+                    far
+                };
+                let up = if y > 0 { sample(x, y - 1) } else { far };
+                let down = if y + 1 < height {
+                    sample(x, y + 1)
+                } else {
+                    far
+                };
+                let d = f64::from(d);
+                let sum = (left - d) + (right - d) + (up - d) + (down - d);
+                let denom = if d > 0.0 { d } else { 1e-6 };
+                *l = (sum.abs() / denom).min(f64::from(f32::MAX)) as f32;
+            }
+        });
+    out
+}
+
+/// Edge mask from a Laplacian map.
+///
+/// The threshold `τ` is the `quantile` (clamped to `[0, 1]`) of `lap` over the valid pixels
+/// (finite `depth`) by nearest rank: the `⌈quantile · n⌉`-th smallest of the `n` values (at
+/// least the first). Edges are valid pixels with `L ≥ τ` and `L > `[`EDGE_MIN_LAPLACIAN`], so a
+/// perfectly flat map has no edges, and neither has an empty map. The result has `depth.len()`
+/// values; missing Laplacian values count as 0.
+pub fn edge_mask(lap: &[f32], depth: &[f32], quantile: f32) -> Vec<bool> {
+    let lap = fit(lap, depth.len(), 0.0);
+    let mut vals: Vec<f32> = lap
+        .iter()
+        .zip(depth)
+        .filter(|(_, d)| d.is_finite())
+        .map(|(l, _)| *l)
+        .collect();
+    if vals.is_empty() {
+        return vec![false; depth.len()];
+    }
+    let q = if quantile.is_nan() {
+        1.0
+    } else {
+        f64::from(quantile).clamp(0.0, 1.0)
+    };
+    let rank = ((q * vals.len() as f64).ceil() as usize).clamp(1, vals.len());
+    let (_, tau, _) = vals.select_nth_unstable_by(rank - 1, f32::total_cmp);
+    let tau = *tau;
+    lap.iter()
+        .zip(depth)
+        .map(|(&l, d)| d.is_finite() && l >= tau && l > EDGE_MIN_LAPLACIAN)
+        .collect()
+}
+
+/// Euclidean distance in pixels from every pixel to the nearest seed, by jump flooding.
+///
+/// The distance between pixels `(x, y)` and `(sx, sy)` is `√(dx² + dy²)` with `dy = |y − sy|` and
+/// `dx = |x − sx|`, or `min(dx, width − dx)` with `wrap_x`. Schedule "1+JFA+2": one pass with
+/// step 1, the standard passes with steps `k, k/2, …, 1` (`k` the smallest power of two
+/// `≥ max(width, height)/2`), then two more with steps 2 and 1; each pass looks at the 3×3
+/// neighbourhood at the step and keeps the nearest seed, in parallel over rows, ping-ponging two
+/// buffers of packed seed coordinates. On the test suite (random images, 0.1–50 % seeds, with
+/// and without wrap) it equals [`brute_force_distance`] at every pixel. No seeds → every pixel
+/// is `f32::INFINITY`; an empty image gives an empty vector. A `seeds` slice of the wrong length
+/// is truncated or padded with non-seeds.
+pub fn jump_flood(seeds: &[bool], width: usize, height: usize, wrap_x: bool) -> Vec<f32> {
+    flood_with_steps(
+        seeds,
+        width,
+        height,
+        wrap_x,
+        &jfa_steps(width, height, true, &[2, 1]),
+    )
+}
+
+/// Exact distance to the nearest seed (same metric as [`jump_flood`]) by comparing every pixel
+/// with every seed: `O(pixels × seeds)`. A reference for tests and checks, not for production
+/// use.
+pub fn brute_force_distance(seeds: &[bool], width: usize, height: usize, wrap_x: bool) -> Vec<f32> {
+    let n = width.saturating_mul(height);
+    if n == 0 {
+        return Vec::new();
+    }
+    let seeds = fit(seeds, n, false);
+    let list: Vec<(usize, usize)> = seeds
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| **s)
+        .map(|(i, _)| (i % width, i / width))
+        .collect();
+    let mut out = vec![f32::INFINITY; n];
+    if list.is_empty() {
+        return out;
+    }
+    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            let best = list
+                .iter()
+                .map(|&(sx, sy)| dist2(x, y, sx, sy, width, wrap_x))
+                .min()
+                .unwrap_or(u64::MAX);
+            *o = to_distance(best);
+        }
+    });
+    out
+}
+
+/// Distance in pixels from every pixel to the nearest depth discontinuity:
+/// [`laplacian`] → [`edge_mask`] at [`EDGE_QUANTILE`] → [`jump_flood`]. Empty pixels get a
+/// distance too; a map without edges gives `f32::INFINITY` everywhere.
+pub fn border_distance(depth: &[f32], width: usize, height: usize, wrap_x: bool) -> Vec<f32> {
+    let n = width.saturating_mul(height);
+    let depth = fit(depth, n, f32::INFINITY);
+    let lap = laplacian(&depth, width, height, wrap_x);
+    let edges = edge_mask(&lap, &depth, EDGE_QUANTILE);
+    jump_flood(&edges, width, height, wrap_x)
+}
+
+/// `v` with exactly `n` elements: truncated, or padded with `pad`.
+fn fit<T: Copy>(v: &[T], n: usize, pad: T) -> Cow<'_, [T]> {
+    if v.len() == n {
+        Cow::Borrowed(v)
+    } else {
+        let mut o = v[..v.len().min(n)].to_vec();
+        o.resize(n, pad);
+        Cow::Owned(o)
+    }
+}
+
+/// Squared pixel distance, wrapping in x when asked (`width > 0`).
+#[inline(always)]
+fn dist2(x: usize, y: usize, sx: usize, sy: usize, width: usize, wrap_x: bool) -> u64 {
+    let mut dx = x.abs_diff(sx);
+    if wrap_x {
+        dx = dx.min(width - dx);
+    }
+    let dx = dx as u64;
+    let dy = y.abs_diff(sy) as u64;
+    dx.saturating_mul(dx).saturating_add(dy.saturating_mul(dy))
+}
+
+/// `√d2` as `f32`, `∞` for "no seed".
+#[inline]
+fn to_distance(d2: u64) -> f32 {
+    if d2 == u64::MAX {
+        f32::INFINITY
+    } else {
+        (d2 as f64).sqrt() as f32
+    }
+}
+
+/// The step sequence: optionally a leading step-1 pass, the halving steps from the smallest
+/// power of two `≥ ⌈max(width, height)/2⌉` down to 1, then `post`.
+fn jfa_steps(width: usize, height: usize, pre: bool, post: &[usize]) -> Vec<usize> {
+    let half = width.max(height).div_ceil(2).max(1);
+    let mut k = half
+        .checked_next_power_of_two()
+        .unwrap_or(1 << (usize::BITS - 1));
+    let mut steps = Vec::new();
+    if pre {
+        steps.push(1);
+    }
+    while k >= 1 {
+        steps.push(k);
+        k /= 2;
+    }
+    steps.extend_from_slice(post);
+    steps
+}
+
+/// A pixel's nearest-seed coordinates packed into one word; `NONE` means "no seed yet".
+trait Cell: Copy + Eq + Send + Sync {
+    const NONE: Self;
+    fn pack(x: usize, y: usize) -> Self;
+    fn unpack(self) -> (usize, usize);
+}
+
+/// 16 + 16 bits, for images up to 65535 × 65535.
+impl Cell for u32 {
+    const NONE: Self = u32::MAX;
+    #[inline(always)]
+    fn pack(x: usize, y: usize) -> Self {
+        ((x as u32) << 16) | y as u32
+    }
+    #[inline(always)]
+    fn unpack(self) -> (usize, usize) {
+        ((self >> 16) as usize, (self & 0xFFFF) as usize)
+    }
+}
+
+/// 32 + 32 bits, for larger images.
+impl Cell for u64 {
+    const NONE: Self = u64::MAX;
+    #[inline(always)]
+    fn pack(x: usize, y: usize) -> Self {
+        ((x as u64) << 32) | y as u64
+    }
+    #[inline(always)]
+    fn unpack(self) -> (usize, usize) {
+        ((self >> 32) as usize, (self & 0xFFFF_FFFF) as usize)
+    }
+}
+
+/// Jump flooding with an explicit step sequence (see [`jump_flood`]).
+fn flood_with_steps(
+    seeds: &[bool],
+    width: usize,
+    height: usize,
+    wrap_x: bool,
+    steps: &[usize],
+) -> Vec<f32> {
+    let n = width.saturating_mul(height);
+    if n == 0 {
+        return Vec::new();
+    }
+    let seeds = fit(seeds, n, false);
+    if !seeds.iter().any(|&s| s) {
+        return vec![f32::INFINITY; n];
+    }
+    if width < 0xFFFF && height < 0xFFFF {
+        flood::<u32>(&seeds, width, height, wrap_x, steps)
+    } else if (width as u64) < u64::from(u32::MAX) && (height as u64) < u64::from(u32::MAX) {
+        flood::<u64>(&seeds, width, height, wrap_x, steps)
+    } else {
+        brute_force_distance(&seeds, width, height, wrap_x)
+    }
+}
+
+fn flood<C: Cell>(
+    seeds: &[bool],
+    width: usize,
+    height: usize,
+    wrap_x: bool,
+    steps: &[usize],
+) -> Vec<f32> {
+    let mut a: Vec<C> = vec![C::NONE; width * height];
+    a.par_chunks_mut(width)
+        .zip(seeds.par_chunks(width))
+        .enumerate()
+        .for_each(|(y, (row, s))| {
+            for (x, (c, &s)) in row.iter_mut().zip(s).enumerate() {
+                if s {
+                    *c = C::pack(x, y);
+                }
+            }
+        });
+    let mut b: Vec<C> = vec![C::NONE; width * height];
+    for &k in steps {
+        jfa_pass(&a, &mut b, width, height, k, wrap_x);
+        std::mem::swap(&mut a, &mut b);
+    }
+    let mut out = vec![f32::INFINITY; width * height];
+    out.par_chunks_mut(width)
+        .zip(a.par_chunks(width))
+        .enumerate()
+        .for_each(|(y, (o, cells))| {
+            for (x, (o, &c)) in o.iter_mut().zip(cells).enumerate() {
+                if c != C::NONE {
+                    let (sx, sy) = c.unpack();
+                    *o = to_distance(dist2(x, y, sx, sy, width, wrap_x));
+                }
+            }
+        });
+    out
+}
+
+/// One jump-flooding pass with step `k`: every pixel keeps the nearest of the seeds recorded
+/// at itself and at its 8 neighbours `k` pixels away.
+fn jfa_pass<C: Cell>(
+    src: &[C],
+    dst: &mut [C],
+    width: usize,
+    height: usize,
+    k: usize,
+    wrap_x: bool,
+) {
+    let kx = if wrap_x { k % width } else { k };
+    dst.par_chunks_mut(width)
+        .enumerate()
+        .with_min_len(ROWS_PER_TASK)
+        .for_each(|(y, row)| {
+            let rows = [
+                y.checked_sub(k),
+                Some(y),
+                y.checked_add(k).filter(|&v| v < height),
+            ];
+            for (x, out) in row.iter_mut().enumerate() {
+                let (left, right) = if wrap_x {
+                    let l = if x >= kx { x - kx } else { x + width - kx };
+                    let r = if x + kx >= width {
+                        x + kx - width
+                    } else {
+                        x + kx
+                    };
+                    (Some(l), Some(r))
+                } else {
+                    (x.checked_sub(k), x.checked_add(k).filter(|&v| v < width))
+                };
+                let cols = [left, Some(x), right];
+                let mut best = C::NONE;
+                let mut best_d = u64::MAX;
+                for ny in rows.iter().flatten() {
+                    let base = ny * width;
+                    for nx in cols.iter().flatten() {
+                        let c = src[base + nx];
+                        if c != C::NONE {
+                            let (sx, sy) = c.unpack();
+                            let d = dist2(x, y, sx, sy, width, wrap_x);
+                            if d < best_d {
+                                best_d = d;
+                                best = c;
+                            }
+                        }
+                    }
+                }
+                *out = best;
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// SplitMix64: small deterministic PRNG for the tests.
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        }
+        fn unit(&mut self) -> f64 {
+            (self.next() >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    fn random_seeds(rng: &mut Rng, n: usize, density: f64) -> Vec<bool> {
+        (0..n).map(|_| rng.unit() < density).collect()
+    }
+
+    fn mismatches(a: &[f32], b: &[f32]) -> usize {
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .zip(b)
+            .filter(|(x, y)| !(x == y || (*x - *y).abs() <= 1e-4))
+            .count()
+    }
+
+    const SIZES: [(usize, usize); 8] = [
+        (1, 1),
+        (1, 50),
+        (50, 1),
+        (2, 2),
+        (37, 23),
+        (23, 37),
+        (64, 64),
+        (200, 100),
+    ];
+    const DENSITIES: [f64; 4] = [0.001, 0.01, 0.1, 0.5];
+
+    #[test]
+    fn jump_flood_equals_brute_force_on_random_images() {
+        let mut rng = Rng(12345);
+        let mut cases = 0;
+        for &(w, h) in &SIZES {
+            for &density in &DENSITIES {
+                for wrap in [false, true] {
+                    let reps = if w * h >= 4096 { 4 } else { 12 };
+                    for _ in 0..reps {
+                        let seeds = random_seeds(&mut rng, w * h, density);
+                        let jfa = jump_flood(&seeds, w, h, wrap);
+                        let exact = brute_force_distance(&seeds, w, h, wrap);
+                        let bad = mismatches(&jfa, &exact);
+                        assert_eq!(bad, 0, "{w}x{h} density {density} wrap {wrap}");
+                        cases += 1;
+                    }
+                }
+            }
+        }
+        assert!(cases > 300);
+    }
+
+    #[test]
+    fn jump_flood_single_seeds_and_wrap() {
+        // A single seed anywhere: the JFA's hardest case for long distances.
+        for (w, h) in [(13, 7), (64, 3), (5, 40), (100, 100)] {
+            for wrap in [false, true] {
+                for i in [0, w * h / 2 + 1, w * h - 1, w - 1, (h - 1) * w] {
+                    let mut seeds = vec![false; w * h];
+                    seeds[i] = true;
+                    let jfa = jump_flood(&seeds, w, h, wrap);
+                    let exact = brute_force_distance(&seeds, w, h, wrap);
+                    assert_eq!(mismatches(&jfa, &exact), 0, "{w}x{h} seed {i} wrap {wrap}");
+                }
+            }
+        }
+        // Wrapping distance goes across the seam.
+        let mut seeds = vec![false; 10];
+        seeds[0] = true;
+        let d = jump_flood(&seeds, 10, 1, true);
+        assert_eq!(d, vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 4.0, 3.0, 2.0, 1.0]);
+        let d = jump_flood(&seeds, 10, 1, false);
+        assert_eq!(d[9], 9.0);
+        let mut seeds = vec![false; 12];
+        seeds[0] = true; // (0, 0) in a 4 × 3 image
+        let d = jump_flood(&seeds, 4, 3, false);
+        assert_eq!(d[11], 13f32.sqrt()); // (3, 2)
+    }
+
+    #[test]
+    fn jump_flood_degenerate_inputs() {
+        assert!(jump_flood(&[], 0, 5, false).is_empty());
+        assert!(jump_flood(&[], 5, 0, true).is_empty());
+        assert!(brute_force_distance(&[], 0, 0, false).is_empty());
+        let d = jump_flood(&[false; 6], 3, 2, false);
+        assert!(d.iter().all(|v| *v == f32::INFINITY));
+        assert_eq!(jump_flood(&[true], 1, 1, true), vec![0.0]);
+        assert_eq!(jump_flood(&[false], 1, 1, false), vec![f32::INFINITY]);
+        // Too short a mask is padded with non-seeds.
+        assert_eq!(jump_flood(&[true], 3, 1, false), vec![0.0, 1.0, 2.0]);
+    }
+
+    #[test]
+    fn step_schedule() {
+        assert_eq!(jfa_steps(1, 1, false, &[]), vec![1]);
+        assert_eq!(
+            jfa_steps(37, 23, true, &[2, 1]),
+            vec![1, 32, 16, 8, 4, 2, 1, 2, 1]
+        );
+        assert_eq!(jfa_steps(64, 64, false, &[]), vec![32, 16, 8, 4, 2, 1]);
+        assert_eq!(jfa_steps(65, 3, false, &[]), vec![64, 32, 16, 8, 4, 2, 1]);
+    }
+
+    const INF: f32 = f32::INFINITY;
+
+    #[test]
+    fn laplacian_hand_computed_3x3() {
+        #[rustfmt::skip]
+        let d = [
+            1.0, 2.0, 3.0,
+            4.0, 5.0, 6.0,
+            7.0, 8.0, 9.0,
+        ];
+        // D_far = 18. Centre: (2-5)+(4-5)+(6-5)+(8-5) = 0.
+        // (0,0): (2-1)+(4-1)+2·(18-1) = 38, / 1.  (1,0): (1-2)+(3-2)+(5-2)+(18-2) = 19, / 2.
+        // (2,2): (6-9)+(8-9)+2·(18-9) = 14, / 9.
+        let l = laplacian(&d, 3, 3, false);
+        assert_eq!(l[4], 0.0);
+        assert_eq!(l[0], 38.0);
+        assert_eq!(l[1], 9.5);
+        assert!((l[8] - 14.0 / 9.0).abs() < 1e-6);
+        // Wrap: (0,0)'s left neighbour is (2,0) = 3: 1 + 3 + 2 + 17 = 23.
+        // (2,0)'s right neighbour is (0,0) = 1: (2-3)+(1-3)+(6-3)+(18-3) = 15, / 3 = 5.
+        let l = laplacian(&d, 3, 3, true);
+        assert_eq!(l[0], 23.0);
+        assert_eq!(l[2], 5.0);
+        assert_eq!(l[4], 0.0);
+        // (1,1) is unchanged by wrap; (0,1): (6-4)+(5-4)+(1-4)+(7-4) = 3, / 4.
+        assert_eq!(l[3], 0.75);
+    }
+
+    #[test]
+    fn laplacian_empty_neighbour() {
+        #[rustfmt::skip]
+        let d = [
+            1.0, 2.0, 3.0,
+            4.0, 5.0, INF,
+            7.0, 8.0, 9.0,
+        ];
+        let l = laplacian(&d, 3, 3, false);
+        // D_far = 18 still. Centre: (2-5)+(4-5)+(18-5)+(8-5) = 12, / 5.
+        assert_eq!(l[4], 2.4);
+        assert_eq!(l[5], 0.0);
+        // (2,0): (2-3)+2·(18-3) (right, up outside) + (18-3) (down empty) = 44, / 3.
+        assert!((l[2] - 44.0 / 3.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn laplacian_4x4_wrap_and_guards() {
+        // A constant ring around the panorama: with wrap the rows have no side borders.
+        let mut d = vec![2.0f32; 16];
+        let l = laplacian(&d, 4, 4, true);
+        // Rows 1 and 2 are flat; rows 0 and 3 see the background (D_far = 4) above/below.
+        assert_eq!(&l[4..12], &[0.0; 8]);
+        assert_eq!(&l[0..4], &[1.0; 4]); // (4-2)/2
+        let l = laplacian(&d, 4, 4, false);
+        assert_eq!(l[5], 0.0);
+        assert_eq!(l[4], 1.0);
+        assert_eq!(l[0], 2.0);
+        // Zero depth uses 1e-6 as denominator; no NaN anywhere.
+        d[5] = 0.0;
+        d[6] = f32::NAN;
+        d[10] = f32::NEG_INFINITY;
+        let l = laplacian(&d, 4, 4, false);
+        assert!(l.iter().all(|v| !v.is_nan()));
+        assert_eq!(l[6], 0.0);
+        assert_eq!(l[10], 0.0);
+        // (1,1) = 0: neighbours 2 (left, up, below) and 4 (empty right): 10 / 1e-6.
+        assert!((l[5] / 1e7 - 1.0).abs() < 1e-6);
+        // All empty → all zero.
+        assert_eq!(laplacian(&[INF; 4], 2, 2, true), vec![0.0; 4]);
+        assert!(laplacian(&[], 0, 3, false).is_empty());
+    }
+
+    #[test]
+    fn edge_mask_quantile_nearest_rank() {
+        // Values 1..=100 in a shuffled order, plus empty pixels with huge Laplacian (ignored).
+        let mut lap: Vec<f32> = (1..=100).map(|v| ((v * 37) % 100 + 1) as f32).collect();
+        let mut depth = vec![1.0f32; 100];
+        lap.push(1e9);
+        depth.push(INF);
+        let m = edge_mask(&lap, &depth, 0.95);
+        // Nearest rank: τ = 95th smallest = 95, so 95..=100 are edges.
+        assert_eq!(m.iter().filter(|e| **e).count(), 6);
+        for (l, e) in lap.iter().zip(&m).take(100) {
+            assert_eq!(*e, *l >= 95.0);
+        }
+        assert!(!m[100]);
+        let m = edge_mask(&lap, &depth, 0.951);
+        assert_eq!(m.iter().filter(|e| **e).count(), 5);
+        assert_eq!(
+            edge_mask(&lap, &depth, 1.0).iter().filter(|e| **e).count(),
+            1
+        );
+        assert_eq!(
+            edge_mask(&lap, &depth, 0.0).iter().filter(|e| **e).count(),
+            100
+        );
+    }
+
+    #[test]
+    fn flat_and_empty_maps_have_no_edges() {
+        let lap = vec![0.0f32; 50];
+        let depth = vec![3.0f32; 50];
+        assert!(edge_mask(&lap, &depth, 0.95).iter().all(|e| !e));
+        assert!(edge_mask(&[5.0; 4], &[INF; 4], 0.95).iter().all(|e| !e));
+        assert!(edge_mask(&[], &[], 0.95).is_empty());
+        // An all-empty map has no edges, hence infinite distances.
+        let d = border_distance(&[INF; 12], 4, 3, true);
+        assert!(d.iter().all(|v| *v == INF));
+    }
+
+    #[test]
+    fn depth_step_gives_edges_along_the_step() {
+        // 64 × 64, depth 1 for x < 32 and 100 for x ≥ 32, D_far = 200.
+        // L: x=31 interior 99, x=32 interior 0.99, left column 199, right column 1,
+        // top/bottom rows ≥ 199 on the left half, 1 on the right half except x=32 (0.01),
+        // corners 398 / 2, interior 0. 188 values ≥ 99, then 2 corners at 2: the 205 largest
+        // values (nearest rank 3892 of 4096) end inside the 1s, so τ = 1.
+        let (w, h) = (64usize, 64usize);
+        let depth: Vec<f32> = (0..w * h)
+            .map(|i| if i % w < 32 { 1.0 } else { 100.0 })
+            .collect();
+        let lap = laplacian(&depth, w, h, false);
+        assert!((lap[10 * w + 31] - 99.0).abs() < 1e-4);
+        assert!((lap[10 * w + 32] - 0.99).abs() < 1e-6);
+        let edges = edge_mask(&lap, &depth, 0.95);
+        for y in 0..h {
+            for x in 0..w {
+                let want = x == 0 || x == 31 || x == 63 || ((y == 0 || y == 63) && x != 32);
+                assert_eq!(edges[y * w + x], want, "({x}, {y})");
+            }
+        }
+        let dist = border_distance(&depth, w, h, false);
+        for y in 0..h {
+            for x in 0..w {
+                let want = if x == 32 && (y == 0 || y == 63) {
+                    1.0 // the gap in the top/bottom edge rows is next to column 31
+                } else {
+                    x.min(x.abs_diff(31)).min(63 - x).min(y).min(63 - y) as f32
+                };
+                assert_eq!(dist[y * w + x], want, "({x}, {y})");
+            }
+        }
+    }
+
+    /// Error rates of JFA variants against brute force (run with `--ignored --nocapture`).
+    #[test]
+    #[ignore]
+    fn jfa_variant_error_rates() {
+        let variants: [(&str, bool, &[usize]); 5] = [
+            ("JFA", false, &[]),
+            ("1+JFA", true, &[]),
+            ("JFA+1", false, &[1]),
+            ("JFA+2", false, &[2, 1]),
+            ("1+JFA+2", true, &[2, 1]),
+        ];
+        let mut sizes = SIZES.to_vec();
+        sizes.extend([(512, 256), (300, 300)]);
+        for (name, pre, post) in variants {
+            let mut rng = Rng(777);
+            let (mut bad, mut total, mut bad_images, mut images) = (0usize, 0usize, 0, 0);
+            for &(w, h) in &sizes {
+                for &density in &[0.0002, 0.001, 0.01, 0.1, 0.5] {
+                    for wrap in [false, true] {
+                        let reps = if w * h > 20_000 { 3 } else { 20 };
+                        for _ in 0..reps {
+                            let seeds = random_seeds(&mut rng, w * h, density);
+                            let steps = jfa_steps(w, h, pre, post);
+                            let jfa = flood_with_steps(&seeds, w, h, wrap, &steps);
+                            let exact = brute_force_distance(&seeds, w, h, wrap);
+                            let b = mismatches(&jfa, &exact);
+                            bad += b;
+                            total += w * h;
+                            bad_images += usize::from(b > 0);
+                            images += 1;
+                        }
+                    }
+                }
+            }
+            println!(
+                "{name:8}: {bad} wrong pixels of {total} ({:.2e}), {bad_images}/{images} images",
+                bad as f64 / total as f64
+            );
+        }
+    }
+
+    /// Timing of `border_distance` on a 4096 × 2048 panorama (run with `--ignored --nocapture`).
+    #[test]
+    #[ignore]
+    fn border_distance_timing_4k() {
+        let (w, h) = (4096usize, 2048usize);
+        let mut depth = vec![INF; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (u, v) = (x as f32 / w as f32, y as f32 / h as f32);
+                if v < 0.15 {
+                    continue; // sky
+                }
+                let mut d = 8.0 + 3.0 * (u * std::f32::consts::TAU).sin() + 4.0 * v;
+                if (0.2..0.3).contains(&u) && v > 0.5 {
+                    d = 3.0; // a box
+                }
+                if ((u - 0.7).powi(2) + (v - 0.6).powi(2)) < 0.01 {
+                    d = 2.0; // a pillar
+                }
+                depth[y * w + x] = d;
+            }
+        }
+        let t = std::time::Instant::now();
+        let lap = laplacian(&depth, w, h, true);
+        let t_lap = t.elapsed();
+        let t = std::time::Instant::now();
+        let edges = edge_mask(&lap, &depth, EDGE_QUANTILE);
+        let t_mask = t.elapsed();
+        let t = std::time::Instant::now();
+        let dist = jump_flood(&edges, w, h, true);
+        let t_jfa = t.elapsed();
+        let t = std::time::Instant::now();
+        let total = border_distance(&depth, w, h, true);
+        let t_total = t.elapsed();
+        assert_eq!(dist, total);
+        println!(
+            "{w}x{h} on {} threads: laplacian {t_lap:?}, edge_mask {t_mask:?} ({} edges), \
+             jump_flood {t_jfa:?}; border_distance {t_total:?}",
+            rayon::current_num_threads(),
+            edges.iter().filter(|e| **e).count()
+        );
+    }
+}

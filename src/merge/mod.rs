@@ -150,3 +150,99 @@ pub fn merge_scan(
         });
     (out, stats)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gbuffer::rasterize;
+    use crate::projection::{Model, Projection};
+    use glam::{DMat4, DVec3};
+
+    /// An orthographic view of a 3×3 pixel patch (10 cm pixels) of the plane z = 0, sensor above.
+    fn patch() -> (Projection, Vec<Vec3>) {
+        let proj = Projection::new(
+            Model::Ortho {
+                a: Vec3::new(10.0, 0.0, 0.0),
+                a0: 1.5,
+                b: Vec3::new(0.0, 10.0, 0.0),
+                b0: 1.5,
+                toward: Vec3::Z,
+                depth0: 2.0,
+            },
+            3,
+            3,
+            false,
+        );
+        let pts = (0..9)
+            .map(|i| Vec3::new(((i % 3) as f32 - 1.0) * 0.1, ((i / 3) as f32 - 1.0) * 0.1, 0.0))
+            .collect();
+        (proj, pts)
+    }
+
+    #[test]
+    fn eq8_weighted_average_of_two_views() {
+        let (proj, pts) = patch();
+        let px: Vec<u32> = (0..9).collect();
+        let n = vec![Vec3::Z; 9];
+        let rad = vec![0.05f32; 9];
+        let depth = vec![2.0f32; 9];
+        let g = rasterize(3, 3, &px, &depth, &pts, &n, &rad);
+        // View 0 sees AO 0.2, view 1 (same surface, shifted frame) sees AO 0.8.
+        let ao0 = vec![0.2f32; 9];
+        let ao1 = vec![0.8f32; 9];
+        // Border distances: view 0 far from borders (w_b = 1), view 1 at 16 px (w_b = 0.25).
+        let b0 = vec![1000.0f32; 9];
+        let b1 = vec![16.0f32; 9];
+        // Scan 1's frame is scan 0's shifted by 5 m in x: its local points are the same
+        // numbers, its pose moves them back onto scan 0's surface.
+        let pose0 = DMat4::from_translation(DVec3::new(5.0, 0.0, 0.0));
+        let pose1 = DMat4::from_translation(DVec3::new(5.0, 0.0, 0.0));
+        let views = [
+            View { proj: &proj, gbuf: &g, ao: &ao0, border: &b0, pose: pose0 },
+            View { proj: &proj, gbuf: &g, ao: &ao1, border: &b1, pose: pose1 },
+        ];
+        let prm = MergeParams { neighbors: 1, dmin: 0.0, dmax: 4.0, border_px: 64.0 };
+        let own = vec![0.2f32; 9];
+        let (ao, st) = merge_scan(0, &pts, &rad, &own, &views, &[false, false], &prm);
+        // w_d = 1 − 2/4 = 0.5 for both, w_n = 1, w_b = 1 and 0.25:
+        // MVAO = (0.2·0.5 + 0.8·0.125) / (0.5 + 0.125) = 0.32
+        for a in &ao {
+            assert!((a - 0.32).abs() < 1e-6, "{a}");
+        }
+        assert_eq!(st.zero_weight, 0);
+        assert_eq!(st.point_views, 18);
+        assert_eq!(st.samples_kept, 18);
+    }
+
+    #[test]
+    fn zero_weight_falls_back_to_own_ssao_and_is_counted() {
+        let (proj, pts) = patch();
+        let px: Vec<u32> = (0..9).collect();
+        // Normals facing away from the sensor: w_n = 0 and eq. 7's visibility test fails.
+        let n = vec![Vec3::NEG_Z; 9];
+        let g = rasterize(3, 3, &px, &[2.0; 9], &pts, &n, &[0.05; 9]);
+        let ao = vec![0.3f32; 9];
+        let b = vec![100.0f32; 9];
+        let v = [View { proj: &proj, gbuf: &g, ao: &ao, border: &b, pose: DMat4::IDENTITY }];
+        let prm = MergeParams { neighbors: 3, dmin: 0.0, dmax: 4.0, border_px: 64.0 };
+        let own = vec![0.7f32; 9];
+        let (out, st) = merge_scan(0, &pts, &[0.05; 9], &own, &v, &[false], &prm);
+        assert!(out.iter().all(|&a| a == 0.7));
+        assert_eq!(st.zero_weight, 9);
+    }
+
+    #[test]
+    fn neighbourhood_and_distance_test() {
+        let (proj, pts) = patch();
+        let px: Vec<u32> = (0..9).collect();
+        let g = rasterize(3, 3, &px, &[2.0; 9], &pts, &[Vec3::Z; 9], &[0.06; 9]);
+        let ao: Vec<f32> = (0..9).map(|i| i as f32 / 10.0).collect();
+        let b = vec![1000.0f32; 9];
+        let v = [View { proj: &proj, gbuf: &g, ao: &ao, border: &b, pose: DMat4::IDENTITY }];
+        let prm = MergeParams { neighbors: 3, dmin: 0.0, dmax: 0.0, border_px: 64.0 };
+        // Centre point: with t = 0.06, neighbours at 0.1 m (edge) pass 2t = 0.12, diagonal
+        // ones at 0.1414 do not → average of pixels 1,3,4,5,7 = (0.1+0.3+0.4+0.5+0.7)/5 = 0.4.
+        let (out, _) = merge_scan(0, &pts[4..5], &[0.06], &[0.0], &v, &[false], &prm);
+        assert!((out[0] - 0.4).abs() < 1e-6, "{}", out[0]);
+    }
+}

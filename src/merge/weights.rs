@@ -80,7 +80,8 @@ mod tests {
         assert_eq!(w_border(200.0, 64.0, 0.01, 0.01), 1.0);
         assert_eq!(w_border(f32::INFINITY, 64.0, 0.01, 0.01), 1.0);
         assert_eq!(w_border(0.0, 64.0, 0.01, 0.01), 0.0);
-        assert_eq!(w_border(5.0, 64.0, 0.0, 0.0), 1.0);
+        // zero radii (duplicates upstream are floored; here raw zeros): α taken as 1
+        assert_eq!(w_border(5.0, 64.0, 0.0, 0.0), 5.0 / 64.0);
     }
 
     #[test]

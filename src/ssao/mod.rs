@@ -2,6 +2,7 @@
 //! then per-point values and flags. Sees one scan, never its pose or other scans.
 
 pub mod blur;
+pub mod horizon;
 pub mod paper;
 pub mod rng;
 
@@ -16,6 +17,9 @@ pub enum Estimator {
     /// Eq. 3–5 of the paper (relative shading; an open floor reads below 1).
     #[default]
     Paper,
+    /// Horizon-based obscurance: converges to the range map's own ray-traced `A(p)` as
+    /// directions × steps grow.
+    Horizon,
 }
 
 /// Parameters of one SSAO evaluation.
@@ -27,8 +31,12 @@ pub struct SsaoParams {
     pub radius: f32,
     /// Falloff distance `t_max` of ρ (metres).
     pub tmax: f32,
-    /// Samples per pixel `|S|`.
+    /// Samples per pixel `|S|` (paper estimator).
     pub samples: u32,
+    /// Azimuthal directions per pixel (horizon estimator).
+    pub directions: u32,
+    /// Steps marched per direction (horizon estimator).
+    pub steps: u32,
     /// Seed of the per-pixel sample patterns.
     pub seed: u64,
     /// Apply the 5×5 Gaussian blur.
@@ -66,6 +74,7 @@ pub fn visibility_weight(n: glam::Vec3, v: glam::Vec3, len: f32) -> f32 {
 pub fn compute(g: &GBuffer, proj: &Projection, p: &SsaoParams) -> AoMap {
     let mut map = match p.estimator {
         Estimator::Paper => paper::ssao(g, proj, p),
+        Estimator::Horizon => horizon::ssao(g, proj, p),
     };
     if p.blur {
         map.ao = blur::gaussian5(&map.ao, g, proj.wrap_x);

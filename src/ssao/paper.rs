@@ -105,6 +105,8 @@ mod tests {
             radius,
             tmax,
             samples,
+            directions: 8,
+            steps: 8,
             seed: 1,
             blur: false,
         }
