@@ -1,0 +1,100 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use glam::{DVec3, Vec3};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use mvao::io::{align, scan_ply};
+use mvao::scan::Scan;
+use std::path::{Path, PathBuf};
+
+/// A fixture path relative to the crate root.
+pub fn fixture(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(rel)
+}
+
+/// All `*.ply` files of a fixture folder, sorted.
+pub fn plys(dir: &str) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(fixture(dir))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "ply"))
+        .collect();
+    v.sort();
+    v
+}
+
+/// Reads scans and applies the alignment file.
+pub fn load_aligned(paths: &[PathBuf], align_file: &Path) -> Vec<Scan> {
+    let al = align::read_alignment(align_file).unwrap();
+    let poses = align::poses_for_scans(&al, paths).unwrap();
+    paths
+        .iter()
+        .zip(poses)
+        .map(|(p, m)| {
+            let (mut s, _) = scan_ply::read_scan(p).unwrap();
+            s.pose = m;
+            s
+        })
+        .collect()
+}
+
+/// World coordinates of a scan's points.
+pub fn world(s: &Scan) -> Vec<DVec3> {
+    s.points
+        .iter()
+        .map(|p| s.pose.transform_point3(p.as_dvec3()))
+        .collect()
+}
+
+/// Median distance from scan `i`'s points to the union of the other scans.
+pub fn median_nn_to_others(scans: &[Scan], i: usize) -> f64 {
+    let others: Vec<[f64; 3]> = scans
+        .iter()
+        .enumerate()
+        .filter(|(j, _)| *j != i)
+        .flat_map(|(_, s)| world(s).into_iter().map(|p| p.to_array()))
+        .collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&others);
+    let mut d: Vec<f64> = world(&scans[i])
+        .iter()
+        .map(|p| tree.nearest_one::<SquaredEuclidean>(&p.to_array()).distance.sqrt())
+        .collect();
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2]
+}
+
+/// Signed concavity of each point: mean height of its k nearest neighbours above its tangent
+/// plane (positive = neighbours rise around it = concave), normals facing the sensor.
+pub fn concavity(points: &[Vec3], normals: &[Vec3], k: usize) -> Vec<f32> {
+    let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
+    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&coords);
+    let k = std::num::NonZeroUsize::new(k).unwrap();
+    points
+        .iter()
+        .zip(normals)
+        .map(|(p, n)| {
+            let nb = tree.nearest_n::<SquaredEuclidean>(&p.to_array(), k);
+            nb.iter()
+                .map(|x| n.dot(points[x.item as usize] - *p))
+                .sum::<f32>()
+                / nb.len() as f32
+        })
+        .collect()
+}
+
+/// Mean of `v` over the indices of the largest and smallest `frac` of `key`.
+pub fn mean_by_extremes(v: &[f32], key: &[f32], frac: f64) -> (f32, f32) {
+    let mut idx: Vec<usize> = (0..key.len()).collect();
+    idx.sort_by(|&a, &b| key[a].total_cmp(&key[b]));
+    let m = ((key.len() as f64 * frac) as usize).max(1);
+    let mean = |ix: &[usize]| ix.iter().map(|&i| v[i]).sum::<f32>() / ix.len() as f32;
+    (mean(&idx[idx.len() - m..]), mean(&idx[..m]))
+}
+
+/// Runs the `mvao` binary.
+pub fn mvao(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_mvao"))
+        .args(args)
+        .output()
+        .unwrap()
+}
