@@ -363,7 +363,10 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
     obs.done("prepare", t0.elapsed().as_secs_f64());
 
     let (mut dmin, mut dmax) = (f32::INFINITY, 0.0f32);
-    for v in &views {
+    for v in views
+        .iter()
+        .filter(|v| v.sensor.projection.sensor_model() != crate::projection::SensorModel::Ortho)
+    {
         for &d in &v.depth {
             if d.is_finite() {
                 dmin = dmin.min(d);
@@ -381,7 +384,7 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         border_px: prm.border_px,
     };
     if prm.dmin.is_none() || prm.dmax.is_none() {
-        note += "dmin/dmax = smallest/largest depth over all scans";
+        note += "dmin/dmax = smallest/largest depth over all scans with a sensor position";
     }
 
     let bounds: Vec<(DVec3, DVec3)> = scans.iter().map(world_bounds).collect();

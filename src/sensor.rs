@@ -50,6 +50,13 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
     if scan.is_empty() {
         return Err(Error::scan(&scan.name, "has no valid point"));
     }
+    let declared = choice == ProjectionChoice::Auto && scan.sensor_hint.is_some();
+    let choice = match (choice, scan.sensor_hint) {
+        (ProjectionChoice::Auto, Some(SensorModel::Equirect)) => ProjectionChoice::Equirect,
+        (ProjectionChoice::Auto, Some(SensorModel::Perspective)) => ProjectionChoice::Perspective,
+        (ProjectionChoice::Auto, Some(SensorModel::Ortho)) => ProjectionChoice::Ortho,
+        (c, _) => c,
+    };
     if let Some(grid) = &scan.grid {
         let mut fits = fit_grid(scan, choice);
         for f in &mut fits {
@@ -85,7 +92,9 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
                     projection.sensor_model(),
                     if fit.warped { " with uneven row/column steps" } else { "" },
                     fit.rms,
-                    if choice == ProjectionChoice::Auto {
+                    if declared {
+                        " (model declared by the input)"
+                    } else if choice == ProjectionChoice::Auto {
                         " (best of the models tried)"
                     } else {
                         " (model given by --projection)"
@@ -100,13 +109,16 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
             }
         }
     }
+    let given = if declared {
+        "declared by the input"
+    } else {
+        "given by --projection"
+    };
     let (model, why) = match choice {
         ProjectionChoice::Auto => auto_model(&scan.points),
-        ProjectionChoice::Equirect => (SensorModel::Equirect, "given by --projection".to_string()),
-        ProjectionChoice::Perspective => {
-            (SensorModel::Perspective, "given by --projection".to_string())
-        }
-        ProjectionChoice::Ortho => (SensorModel::Ortho, "given by --projection".to_string()),
+        ProjectionChoice::Equirect => (SensorModel::Equirect, given.to_string()),
+        ProjectionChoice::Perspective => (SensorModel::Perspective, given.to_string()),
+        ProjectionChoice::Ortho => (SensorModel::Ortho, given.to_string()),
     };
     let projection = from_points(&scan.points, model)
         .ok_or_else(|| Error::scan(&scan.name, format!("no {model} map fits its points")))?;
@@ -442,37 +454,44 @@ fn fit_perspective(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Option<Fit>
 
 /// Orthographic fit: each pixel coordinate an affine function of the 3-D point.
 fn fit_ortho(pts: &[DVec3], rc: &[(f64, f64)]) -> Option<Fit> {
+    // Centred coordinates keep the constant term apart from the coordinates, so a coplanar
+    // scan (no information along its normal) gets no gradient along the normal.
+    let mu = pts.iter().sum::<DVec3>() / pts.len().max(1) as f64;
     let ax: Vec<([f64; 4], f64)> = pts
         .iter()
         .zip(rc)
-        .map(|(p, &(_, c))| ([p.x, p.y, p.z, 1.0], c))
+        .map(|(p, &(_, c))| {
+            let q = *p - mu;
+            ([q.x, q.y, q.z, 1.0], c)
+        })
         .collect();
     let ay: Vec<([f64; 4], f64)> = pts
         .iter()
         .zip(rc)
-        .map(|(p, &(r, _))| ([p.x, p.y, p.z, 1.0], r))
+        .map(|(p, &(r, _))| {
+            let q = *p - mu;
+            ([q.x, q.y, q.z, 1.0], r)
+        })
         .collect();
     let fx = lstsq(&ax)?;
     let fy = lstsq(&ay)?;
     let a = DVec3::new(fx[0], fx[1], fx[2]);
     let b = DVec3::new(fy[0], fy[1], fy[2]);
+    let (a0, b0) = (fx[3] - a.dot(mu), fy[3] - b.dot(mu));
     let toward = orient_toward(a.cross(b))?;
-    let sq: f64 = ax
+    let sq: f64 = pts
         .iter()
-        .zip(&ay)
-        .map(|((f, x), (_, y))| {
-            let p = DVec3::new(f[0], f[1], f[2]);
-            (a.dot(p) + fx[3] - x).powi(2) + (b.dot(p) + fy[3] - y).powi(2)
-        })
+        .zip(rc)
+        .map(|(p, &(r, c))| (a.dot(*p) + a0 - c).powi(2) + (b.dot(*p) + b0 - r).powi(2))
         .sum();
-    let depth0 = pts.iter().map(|p| toward.dot(*p)).fold(f64::MIN, f64::max);
+    let depth0 = ortho_depth0(pts, toward);
     Some(Fit {
         projection: Projection {
             model: Model::Ortho {
                 a: a.as_vec3(),
-                a0: fx[3] as f32,
+                a0: a0 as f32,
                 b: b.as_vec3(),
-                b0: fy[3] as f32,
+                b0: b0 as f32,
                 toward: toward.as_vec3(),
                 depth0: depth0 as f32,
             },
@@ -483,10 +502,24 @@ fn fit_ortho(pts: &[DVec3], rc: &[(f64, f64)]) -> Option<Fit> {
             warp_y: None,
         },
         swap: false,
-        rms: rms_of(sq, ax.len()),
+        rms: rms_of(sq, pts.len()),
         rank: 2.0,
         warped: false,
     })
+}
+
+/// An orthographic sensor has no position; its "depth" is measured from a plane placed one
+/// scan extent beyond the nearest point, so depths are positive and depth ratios (the
+/// border field's relative Laplacian) are well defined.
+fn ortho_depth0(pts: &[DVec3], toward: DVec3) -> f64 {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    let mut top = f64::NEG_INFINITY;
+    for p in pts {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+        top = top.max(toward.dot(*p));
+    }
+    top + (hi - lo).length().max(1e-3)
 }
 
 /// Unit view axis pointing to the sensor side: by convention an orthographic sensor looks
@@ -686,7 +719,7 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
                 .max((hi.0 - lo.0) / MAX_SIDE)
                 .max((hi.1 - lo.1) / MAX_SIDE)
                 .max(1e-9);
-            let depth0 = points.iter().map(|p| p.z).fold(f32::MIN, f32::max);
+            let depth0 = ortho_depth0(&pts, DVec3::Z) as f32;
             Some(Projection {
                 model: Model::Ortho {
                     a: Vec3::new((1.0 / step) as f32, 0.0, 0.0),

@@ -4,6 +4,7 @@
 
 use super::ply::PlyFile;
 use crate::error::{Error, Result};
+use crate::projection::SensorModel;
 use crate::scan::{Grid, Scan};
 use glam::{DMat4, Vec3};
 use std::path::Path;
@@ -105,6 +106,23 @@ pub fn scan_from_ply(ply: &PlyFile, path: &Path) -> Result<Scan> {
         grid,
         pose: DMat4::IDENTITY,
         skipped_nonfinite: skipped,
+        sensor_hint: sensor_hint(ply),
+    })
+}
+
+/// A `comment sensor <equirect|perspective|ortho> …` line declares the sensor model.
+fn sensor_hint(ply: &PlyFile) -> Option<SensorModel> {
+    ply.header.comments.iter().find_map(|c| {
+        let mut it = c.split_whitespace();
+        if it.next()? != "sensor" {
+            return None;
+        }
+        match it.next()? {
+            "equirect" | "equirectangular" | "spherical" => Some(SensorModel::Equirect),
+            "perspective" | "pinhole" => Some(SensorModel::Perspective),
+            "ortho" | "orthographic" => Some(SensorModel::Ortho),
+            _ => None,
+        }
     })
 }
 

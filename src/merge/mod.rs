@@ -29,7 +29,8 @@ pub struct View<'a> {
     pub pose: DMat4,
 }
 
-/// Merge parameters (after defaults).
+/// Merge parameters (after defaults). `d_min`/`d_max` apply to views with a sensor position
+/// (equirect, perspective); an orthographic view gets `w_d = 1`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct MergeParams {
     /// Neighbourhood side N (odd): N×N pixels around each projection.
@@ -101,6 +102,8 @@ pub fn merge_scan(
             for &(j, rel, b) in &pairs {
                 let v = &views[j];
                 let g = v.gbuf;
+                // An orthographic view's resolution does not fall with depth: no w_d.
+                let use_wd = v.proj.sensor_model() != crate::projection::SensorModel::Ortho;
                 for k in 0..n {
                     let pi = base + k;
                     let q: Vec3 = rel.transform_point3a(Vec3A::from(points[pi])).into();
@@ -124,7 +127,12 @@ pub fn merge_scan(
                             if !corresponds(q, p_ij, n_ij, rad_i, rad_ij, b) {
                                 continue;
                             }
-                            let w = w_distance(g.depth[idx], prm.dmin, prm.dmax)
+                            let wd = if use_wd {
+                                w_distance(g.depth[idx], prm.dmin, prm.dmax)
+                            } else {
+                                1.0
+                            };
+                            let w = wd
                                 * w_normal(n_ij, v.proj.toward_sensor(p_ij))
                                 * w_border(v.border[idx], prm.border_px, rad_i, rad_ij);
                             st.samples_kept += 1;

@@ -42,6 +42,10 @@ pub struct Scan {
     pub pose: DMat4,
     /// Vertices skipped for non-finite coordinates.
     pub skipped_nonfinite: usize,
+    /// The sensor model the input declares (a PLY `comment sensor <model>` line, the virtual
+    /// scanner); `--projection auto` fits only this model to the grid. Geometry alone cannot
+    /// tell an orthographic view of a plane from a perspective one.
+    pub sensor_hint: Option<crate::projection::SensorModel>,
 }
 
 impl Scan {
@@ -58,6 +62,7 @@ impl Scan {
             grid: None,
             pose: DMat4::IDENTITY,
             skipped_nonfinite: 0,
+            sensor_hint: None,
         }
     }
 

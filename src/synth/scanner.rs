@@ -364,6 +364,7 @@ pub fn scan_scene(
         }),
         pose: station.pose(),
         skipped_nonfinite: 0,
+        sensor_hint: Some(station.model),
     }
 }
 
