@@ -210,7 +210,7 @@ impl PlyFile {
     }
 
     /// Sets a scalar property of an element from f64 values (one per row), converting to
-    /// `ty` (integers are rounded and clamped to the type's range; NaN becomes 0). If the
+    /// `ty` (integers are rounded and clamped to the type's range; NaN becomes 0 in integer types). If the
     /// property exists it is overwritten in place with its existing type (`ty` ignored);
     /// otherwise it is appended as the element's last property.
     pub fn set_scalar_column(
@@ -627,11 +627,11 @@ impl ScalarType {
         })
     }
 
-    /// `v` as this type, little endian: NaN becomes 0, integers are rounded and clamped
-    /// (Rust's float-to-int `as` saturates).
+    /// `v` as this type, little endian: for integer types NaN becomes 0 and values are
+    /// rounded and clamped (Rust's float-to-int `as` saturates); floats are kept as they are.
     #[inline]
     fn encode(self, v: f64) -> Encoded {
-        let v = if v.is_nan() { 0.0 } else { v };
+        let v = if v.is_nan() && self.int_range().is_some() { 0.0 } else { v };
         let mut e = Encoded {
             buf: [0; 8],
             len: self.size(),
@@ -1723,7 +1723,9 @@ mod tests {
             .collect();
         assert_eq!(names, vec!["x", "y", "z", "flag", "ao", "n"]);
         assert_eq!(p.data[0].bytes.len(), 4 * (4 + 8 + 4 + 1 + 4 + 2));
-        assert_eq!(p.scalar_column("vertex", "ao").unwrap(), vec![0.5, 0.25, 0.0, 1.0]);
+        let ao = p.scalar_column("vertex", "ao").unwrap();
+        assert_eq!((ao[0], ao[1], ao[3]), (0.5, 0.25, 1.0));
+        assert!(ao[2].is_nan(), "floats keep NaN as written");
         assert_eq!(
             p.scalar_column("vertex", "n").unwrap(),
             vec![32767.0, -1.0, -2.0, -32768.0]

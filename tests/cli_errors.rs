@@ -1,0 +1,163 @@
+//! Bad input through the real binary: one clear line naming the file, a non-zero exit, no
+//! panic, inputs untouched and nothing half-written.
+
+mod common;
+
+use common::*;
+use mvao::io::ply::{PlyFile, ScalarType};
+use std::path::{Path, PathBuf};
+
+fn s(p: &Path) -> String {
+    p.display().to_string()
+}
+
+/// Runs `mvao merge` and expects failure with `needle` in the message.
+fn fails(args: &[String], needle: &str) -> String {
+    let a: Vec<&str> = args.iter().map(|x| x.as_str()).collect();
+    let r = mvao(&a);
+    let err = String::from_utf8_lossy(&r.stderr).to_string();
+    assert_eq!(r.status.code(), Some(2), "expected exit 2, stderr: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(err.contains(needle), "expected '{needle}' in: {err}");
+    err
+}
+
+/// A small valid scan written to `dir/name`.
+fn small_scan(dir: &Path, name: &str, xyz: &[[f64; 3]]) -> PathBuf {
+    let x: Vec<f64> = xyz.iter().map(|p| p[0]).collect();
+    let y: Vec<f64> = xyz.iter().map(|p| p[1]).collect();
+    let z: Vec<f64> = xyz.iter().map(|p| p[2]).collect();
+    let ply = PlyFile::from_vertex_columns(
+        &[("x", ScalarType::F32, &x), ("y", ScalarType::F32, &y), ("z", ScalarType::F32, &z)],
+        &[],
+    )
+    .unwrap();
+    let p = dir.join(name);
+    ply.write_path(&p).unwrap();
+    p
+}
+
+/// A hemisphere of points around a scanner at the origin.
+fn dome(n: usize) -> Vec<[f64; 3]> {
+    (0..n)
+        .map(|i| {
+            let a = i as f64 * 0.61803398875 * std::f64::consts::TAU;
+            let e = (i as f64 / n as f64) * 1.2;
+            [3.0 * e.cos() * a.cos(), 3.0 * e.cos() * a.sin(), 3.0 * e.sin() - 1.0]
+        })
+        .collect()
+}
+
+#[test]
+fn missing_file_is_named() {
+    let out = tempfile::tempdir().unwrap();
+    let err = fails(
+        &["merge".into(), "-o".into(), s(out.path()), "no/such/scan.ply".into()],
+        "no/such/scan.ply",
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
+}
+
+#[test]
+fn not_a_ply_truncated_and_missing_coordinates() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    let txt = d.path().join("notes.ply");
+    std::fs::write(&txt, "hello world\n").unwrap();
+    fails(&["merge".into(), "-o".into(), s(&out), s(&txt)], "notes.ply");
+
+    let good = std::fs::read(fixture("3dtk-uos-3scans/scan000.ply")).unwrap();
+    let cut = d.path().join("cut.ply");
+    std::fs::write(&cut, &good[..good.len() / 2]).unwrap();
+    fails(&["merge".into(), "-o".into(), s(&out), s(&cut)], "truncated");
+
+    let x = vec![1.0, 2.0];
+    let noz = PlyFile::from_vertex_columns(
+        &[("x", ScalarType::F32, &x), ("y", ScalarType::F32, &x)],
+        &[],
+    )
+    .unwrap();
+    let p = d.path().join("noz.ply");
+    noz.write_path(&p).unwrap();
+    fails(&["merge".into(), "-o".into(), s(&out), s(&p)], "no 'z' coordinate");
+    assert!(!out.exists(), "a failed run left an output directory");
+}
+
+#[test]
+fn non_finite_points_are_skipped_counted_and_never_written() {
+    let d = tempfile::tempdir().unwrap();
+    let mut pts = dome(3000);
+    pts[10] = [f64::NAN, 0.0, 0.0];
+    pts[20] = [0.0, f64::INFINITY, 1.0];
+    let p = small_scan(d.path(), "nan.ply", &pts);
+    let before = std::fs::read(&p).unwrap();
+    let out = d.path().join("out");
+    let r = mvao(&["merge", "-q", "-o", &s(&out), &s(&p), "--radius", "0.3"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("2 vertices with non-finite coordinates"));
+    let o = PlyFile::read_path(&out.join("nan.mvao.ply")).unwrap();
+    assert_eq!(o.header.elements[0].count, 2998);
+    let xyz = o.vertex_xyz().unwrap();
+    assert!(xyz.iter().all(|p| p.iter().all(|v| v.is_finite())));
+    assert!(o.scalar_column("vertex", "ao").unwrap().iter().all(|a| (0.0..=1.0).contains(a)));
+    let rep: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(rep["scans"][0]["skipped_nonfinite"], 2);
+    assert_eq!(std::fs::read(&p).unwrap(), before, "input modified");
+}
+
+#[test]
+fn alignment_mismatches_are_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let a = small_scan(d.path(), "a.ply", &dome(500));
+    let b = small_scan(d.path(), "b.ply", &dome(500));
+    let out = d.path().join("out");
+    let al = d.path().join("poses.json");
+    let id = "[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]";
+    std::fs::write(&al, format!("{{\"a.ply\": {id}, \"c.ply\": {id}}}")).unwrap();
+    fails(
+        &["merge".into(), "-o".into(), s(&out), "--align".into(), s(&al), s(&a), s(&b)],
+        "poses.json",
+    );
+    std::fs::write(&al, format!("{{\"a.ply\": {id}, \"b.ply\": [2,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]}}"))
+        .unwrap();
+    let err = fails(
+        &["merge".into(), "-o".into(), s(&out), "--align".into(), s(&al), s(&a), s(&b)],
+        "poses.json",
+    );
+    assert!(err.contains("scale") || err.contains("shear"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn existing_outputs_need_force() {
+    let d = tempfile::tempdir().unwrap();
+    let a = small_scan(d.path(), "a.ply", &dome(2000));
+    let out = d.path().join("out");
+    let args = ["merge", "-q", "--radius", "0.3", "-o", &s(&out), &s(&a)];
+    assert!(mvao(&args).status.success());
+    let first = std::fs::read(out.join("a.mvao.ply")).unwrap();
+    fails(&args.iter().map(|x| x.to_string()).collect::<Vec<_>>(), "--force");
+    let mut forced: Vec<&str> = args.to_vec();
+    forced.push("--force");
+    assert!(mvao(&forced).status.success());
+    // Same seed, same bytes.
+    assert_eq!(std::fs::read(out.join("a.mvao.ply")).unwrap(), first);
+    // No temporary files left behind.
+    let stray: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
+        .collect();
+    assert!(stray.is_empty());
+}
+
+#[test]
+fn bad_flag_values_are_rejected() {
+    let d = tempfile::tempdir().unwrap();
+    let a = small_scan(d.path(), "a.ply", &dome(100));
+    fails(&["merge".into(), s(&a), "--radius=-1".into()], "--radius");
+    let r = mvao(&["merge", &s(&a), "--neighbors", "4"]);
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("1, 3, 5, 7, 9"));
+}
