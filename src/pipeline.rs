@@ -255,7 +255,11 @@ pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> 
         .as_ref()
         .map(|n| n.iter().filter(|v| *v == &Vec3::ZERO).count());
     let need = invalid_normals.is_none_or(|k| k > 0);
-    let (est, radii) = normals::estimate(&scan.points, need, |p| proj.toward_sensor(p));
+    let toward = |p| proj.toward_sensor(p);
+    let (est, radii) = match &scan.grid {
+        Some(g) if sensor.grid_pixels.is_some() => normals::estimate_grid(&scan.points, g, need, toward),
+        _ => normals::estimate(&scan.points, need, toward),
+    };
     let (normals, note) = match (&scan.normals, est) {
         (Some(given), Some(est)) => {
             let n: Vec<Vec3> = given
@@ -274,7 +278,14 @@ pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> 
                 .collect(),
             "input".to_string(),
         ),
-        (None, Some(est)) => (est, "estimated (PCA, k = 16)".to_string()),
+        (None, Some(est)) => (
+            est,
+            if scan.grid.is_some() && sensor.grid_pixels.is_some() {
+                "estimated (PCA, k = 16, neighbours from the native grid)".to_string()
+            } else {
+                "estimated (PCA, k = 16)".to_string()
+            },
+        ),
         (None, None) => (vec![Vec3::Z; scan.len()], "none".into()),
     };
     lap("normals", &mut t);

@@ -361,9 +361,12 @@ fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
             (s.y.atan2(s.x), s.z.atan2(s.x.hypot(s.y)))
         })
         .collect();
-    let az_ref = seam_opposite(ang.iter().map(|a| a.0));
     let mut out = Vec::new();
     for swap in [false, true] {
+        // The grid's middle (in the azimuth index) maps to azimuth 0, so the ±π seam falls at
+        // the grid's edges, where a full-circle scan has its own seam.
+        let xs: Vec<f64> = rc.iter().map(|&(r, c)| if swap { r } else { c }).collect();
+        let az_ref = grid_middle_azimuth(&ang, &xs);
         let mut ax = Vec::with_capacity(ang.len());
         let mut ay = Vec::with_capacity(ang.len());
         for ((az, el), &(r, c)) in ang.iter().zip(rc) {
@@ -374,10 +377,24 @@ fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
             }
             ay.push(([*el, 1.0], py));
         }
-        let (Some(fx), Some(fy)) = (lstsq(&ax), lstsq(&ay)) else {
+        // Fit the azimuth away from the seam, where a full circle's ±π ambiguity cannot
+        // split a column; judge residuals modulo the period.
+        let inner: Vec<([f64; 2], f64)> =
+            ax.iter().copied().filter(|(f, _)| f[0].abs() < 0.75 * PI).collect();
+        let (Some(fx), Some(fy)) = (
+            lstsq(if inner.len() >= 8 { &inner } else { &ax }),
+            lstsq(&ay),
+        ) else {
             continue;
         };
-        let sqx: f64 = ax.iter().map(|(f, x)| (fx[0] * f[0] + fx[1] - x).powi(2)).sum();
+        let period = TAU * fx[0].abs();
+        let sqx: f64 = ax
+            .iter()
+            .map(|(f, x)| {
+                let d = (fx[0] * f[0] + fx[1] - x).rem_euclid(period.max(1e-9));
+                d.min(period - d).powi(2)
+            })
+            .sum();
         let sqy: f64 = ay.iter().map(|(g, y)| (fy[0] * g[0] + fy[1] - y).powi(2)).sum();
         let rms = (rms_of(sqx, ax.len()).powi(2) + rms_of(sqy, ay.len()).powi(2)).sqrt();
         out.push(Fit {
@@ -544,6 +561,24 @@ fn wrap_pi(a: f64) -> f64 {
         r += TAU;
     }
     r
+}
+
+/// Circular mean azimuth of the points whose grid index `xs` is the median index.
+fn grid_middle_azimuth(ang: &[(f64, f64)], xs: &[f64]) -> f64 {
+    let mut sorted: Vec<f64> = xs.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let mid = sorted[sorted.len() / 2];
+    let (mut sx, mut sy) = (0.0, 0.0);
+    for ((az, el), x) in ang.iter().zip(xs) {
+        if (x - mid).abs() < 0.5 && el.cos() > 0.02 {
+            sx += az.cos();
+            sy += az.sin();
+        }
+    }
+    if sx == 0.0 && sy == 0.0 {
+        return seam_opposite(ang.iter().map(|a| a.0));
+    }
+    sy.atan2(sx)
 }
 
 /// The azimuth opposite the largest gap in `az` (so the map's seam falls where no data is).

@@ -74,6 +74,108 @@ where
     (need_normals.then_some(normals), radii)
 }
 
+/// Grid half-window tried first, and the largest one, for neighbours from a native grid.
+const GRID_R0: i64 = 4;
+const GRID_RMAX: i64 = 6;
+
+/// Like [`estimate`], but the k nearest neighbours come from a window of the scan's native
+/// grid (the cells around the point, nearest in 3-D first) instead of a k-d tree: one pass
+/// with no tree and no per-point allocation. On gridded scans the grid holds each point's
+/// surface neighbours; `tests/neighbours.rs` pins the agreement with the k-d tree on the
+/// bundled scans (median radius within 5 %, normals within 5°).
+pub fn estimate_grid<F>(
+    points: &[Vec3],
+    grid: &crate::scan::Grid,
+    need_normals: bool,
+    toward: F,
+) -> (Option<Vec<Vec3>>, Vec<f32>)
+where
+    F: Fn(Vec3) -> Vec3 + Sync,
+{
+    let n = points.len();
+    let (rows, cols) = (grid.rows as i64, grid.cols as i64);
+    let cells = (rows * cols) as usize;
+    if n == 0 || cells == 0 || grid.row.len() != n {
+        return estimate(points, need_normals, toward);
+    }
+    let mut at = vec![u32::MAX; cells];
+    for i in 0..n {
+        let c = grid.row[i] as usize * cols as usize + grid.col[i] as usize;
+        if c < cells {
+            at[c] = i as u32;
+        }
+    }
+    let k = K_RADIUS.min(n);
+    let mut normals = if need_normals {
+        vec![Vec3::ZERO; n]
+    } else {
+        Vec::new()
+    };
+    let mut radii = vec![0.0f32; n];
+    const CHUNK: usize = 4096;
+    let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
+        let mut cand = [(0.0f32, 0u32); ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize];
+        for (o, r) in rad.iter_mut().enumerate() {
+            let i = ci * CHUNK + o;
+            let p = points[i];
+            let (r0, c0) = (grid.row[i] as i64, grid.col[i] as i64);
+            let mut m;
+            let mut half = GRID_R0;
+            loop {
+                m = 0;
+                for dr in -half..=half {
+                    let rr = r0 + dr;
+                    if rr < 0 || rr >= rows {
+                        continue;
+                    }
+                    for dc in -half..=half {
+                        let cc = c0 + dc;
+                        if cc < 0 || cc >= cols {
+                            continue;
+                        }
+                        let j = at[(rr * cols + cc) as usize];
+                        if j != u32::MAX {
+                            cand[m] = (points[j as usize].distance_squared(p), j);
+                            m += 1;
+                        }
+                    }
+                }
+                if m >= k || half >= GRID_RMAX {
+                    break;
+                }
+                half += 2;
+            }
+            let kk = k.min(m).max(1);
+            let c = &mut cand[..m];
+            if m > 0 {
+                c.select_nth_unstable_by(kk - 1, |a, b| a.0.total_cmp(&b.0));
+            }
+            let dk = c.get(kk - 1).map(|x| x.0.max(0.0).sqrt()).unwrap_or(0.0);
+            *r = radius_from_dk(dk, k);
+            if !nrm.is_empty() {
+                let kn = K_NORMAL.min(m);
+                if kn > 0 && kn < m {
+                    c.select_nth_unstable_by(kn - 1, |a, b| a.0.total_cmp(&b.0));
+                }
+                nrm[o] = pca_normal(c[..kn].iter().map(|x| points[x.1 as usize]), toward(p));
+            }
+        }
+    };
+    if need_normals {
+        radii
+            .par_chunks_mut(CHUNK)
+            .zip(normals.par_chunks_mut(CHUNK))
+            .enumerate()
+            .for_each(work);
+    } else {
+        radii
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(ci, rad)| work((ci, (rad, &mut []))));
+    }
+    (need_normals.then_some(normals), radii)
+}
+
 /// The PCA normal of a neighbourhood (eigenvector of the smallest covariance eigenvalue),
 /// oriented so that `n·toward ≥ 0`. Degenerate neighbourhoods return `toward`.
 pub fn pca_normal(nb: impl Iterator<Item = Vec3> + Clone, toward: Vec3) -> Vec3 {

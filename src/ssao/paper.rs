@@ -12,6 +12,10 @@ use crate::gbuffer::GBuffer;
 use crate::projection::Projection;
 use rayon::prelude::*;
 
+/// cos and sin of the golden angle π(3 − √5).
+const GOLD_COS: f32 = -0.737_368_9;
+const GOLD_SIN: f32 = 0.675_490_3;
+
 /// Computes the unblurred paper SSAO of every valid pixel.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     let n = g.width * g.height;
@@ -35,11 +39,17 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                 let (rx, ry) = proj.disk_radius(prm.radius, g.depth[c], x as f32 + 0.5, y as f32 + 0.5);
                 let mut rng = Rng::new(prm.seed, c as u64);
                 let (mut sum, mut cnt) = (0.0f32, 0u32);
-                for _ in 0..prm.samples {
-                    let r = rng.next_f32().sqrt();
-                    let (s, co) = (tau * rng.next_f32()).sin_cos();
+                // Stratified uniform disk samples: sample k has r² uniform in [k/S, (k+1)/S)
+                // and the angles step by the golden angle from a random start, so every
+                // sample is uniform in the disk and the set covers it evenly.
+                let u = rng.next_f32();
+                let (mut s, mut co) = (tau * rng.next_f32()).sin_cos();
+                let inv = 1.0 / prm.samples.max(1) as f32;
+                for k in 0..prm.samples {
+                    let r = ((k as f32 + u) * inv).sqrt();
                     let sx = x as f32 + 0.5 + rx * r * co;
                     let sy = y as f32 + 0.5 + ry * r * s;
+                    (s, co) = (s * GOLD_COS + co * GOLD_SIN, co * GOLD_COS - s * GOLD_SIN);
                     let Some(i) = proj.pixel_index(sx, sy) else {
                         continue;
                     };
