@@ -9,6 +9,8 @@
 //! points to pixels → [`gbuffer`] rasterizes → [`ssao`] shades each view → [`merge`] combines the
 //! views → [`pipeline`] orders all of it and [`report`] records what happened.
 #![deny(missing_docs)]
+// Guards are written `!(x > 0.0)` on purpose: they also reject NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod cli;
 pub mod error;

@@ -207,10 +207,11 @@ fn solve<const K: usize>(mut a: [[f64; K]; K], mut b: [f64; K]) -> Option<[f64; 
         }
         a.swap(c, p);
         b.swap(c, p);
+        let pivot = a[c];
         for r in c + 1..K {
-            let f = a[r][c] / a[c][c];
-            for k in c..K {
-                a[r][k] -= f * a[c][k];
+            let f = a[r][c] / pivot[c];
+            for (ark, pk) in a[r][c..].iter_mut().zip(&pivot[c..]) {
+                *ark -= f * pk;
             }
             b[r] -= f * b[c];
         }

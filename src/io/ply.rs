@@ -280,7 +280,7 @@ impl PlyFile {
                             let &[a, b] = w else { return Err(bad_data()) };
                             let row = body.bytes.get(a..b).ok_or_else(bad_data)?;
                             let off = field_offset(&def.props, row, pi).ok_or_else(bad_data)?;
-                            if off.checked_add(size).map_or(true, |e| e > row.len()) {
+                            if off.checked_add(size).is_none_or(|e| e > row.len()) {
                                 return Err(bad_data());
                             }
                             positions.push(a + off);

@@ -80,7 +80,7 @@ pub fn scan_from_ply(ply: &PlyFile, path: &Path) -> Result<Scan> {
     let grid = match (grid_cells, cells) {
         (Some(g), Some((row, col))) => {
             // A vertex missing from the grid leaves the grid unusable as a whole.
-            if row.iter().any(|&r| r == u32::MAX) {
+            if row.contains(&u32::MAX) {
                 None
             } else {
                 Some(Grid {

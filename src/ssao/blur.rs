@@ -70,11 +70,11 @@ mod tests {
         let g = gb(7, 5, |i| i % 3 != 0);
         let ao: Vec<f32> = (0..35).map(|i| if i % 3 == 0 { 0.0 } else { 0.6 }).collect();
         let b = gaussian5(&ao, &g, false);
-        for i in 0..35 {
+        for (i, v) in b.iter().enumerate() {
             if i % 3 != 0 {
-                assert!((b[i] - 0.6).abs() < 1e-6);
+                assert!((v - 0.6).abs() < 1e-6);
             } else {
-                assert_eq!(b[i], 0.0);
+                assert_eq!(*v, 0.0);
             }
         }
     }
