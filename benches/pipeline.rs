@@ -86,7 +86,7 @@ fn main() {
         let mp = MergeParams { neighbors: nb, dmin: 0.0, dmax: 10.0, border_px: 64.0 };
         let (own, _) = views[0].point_ssao();
         let (t, (_, st)) = best_of(3, || {
-            merge::merge_scan(0, &scans[0].points, &views[0].radii, &own, &mv, &[false; 3], &mp)
+            merge::merge_scan(0, &scans[0].points, &views[0].radii, &own, &mv, &[false; 3], &mp, &|_| {})
         });
         println!(
             "merge N={nb}, 3 views: {:.3} s, {} point-views = {:.2} M point-views/s",

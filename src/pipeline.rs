@@ -423,9 +423,7 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
                 .iter()
                 .map(|b| !overlaps(&bounds[i], b, margin))
                 .collect();
-            let r = merge::merge_scan(i, &s.points, &v.radii, &own, &mv, &skip, &mp);
-            obs.advance(s.len() as u64);
-            r
+            merge::merge_scan(i, &s.points, &v.radii, &own, &mv, &skip, &mp, &|n| obs.advance(n))
         };
         results.push((own, ao, no_sample, st));
     }

@@ -64,7 +64,9 @@ impl std::ops::AddAssign for MergeStats {
 
 /// MVAO of scan i's points. `own` is each point's SSAO in its own scan (the fallback when all
 /// weights are zero); `views[i]` must be scan i itself. Views listed in `skip` are not visited
-/// (pairs known not to overlap).
+/// (pairs known not to overlap). `progress` is called with the number of points of each
+/// finished chunk.
+#[allow(clippy::too_many_arguments)]
 pub fn merge_scan(
     i: usize,
     points: &[Vec3],
@@ -73,6 +75,7 @@ pub fn merge_scan(
     views: &[View<'_>],
     skip: &[bool],
     prm: &MergeParams,
+    progress: &(dyn Fn(u64) + Sync),
 ) -> (Vec<f32>, MergeStats) {
     let half = (prm.neighbors.max(1) / 2) as i64;
     let pose_i = views[i].pose;
@@ -150,6 +153,7 @@ pub fn merge_scan(
                     own[base + k]
                 };
             }
+            progress(n as u64);
             st
         })
         .reduce(MergeStats::default, |mut a, b| {
@@ -211,7 +215,7 @@ mod tests {
         ];
         let prm = MergeParams { neighbors: 1, dmin: 0.0, dmax: 4.0, border_px: 64.0 };
         let own = vec![0.2f32; 9];
-        let (ao, st) = merge_scan(0, &pts, &rad, &own, &views, &[false, false], &prm);
+        let (ao, st) = merge_scan(0, &pts, &rad, &own, &views, &[false, false], &prm, &|_| {});
         // w_d = 1 − 2/4 = 0.5 for both, w_n = 1, w_b = 1 and 0.25:
         // MVAO = (0.2·0.5 + 0.8·0.125) / (0.5 + 0.125) = 0.32
         for a in &ao {
@@ -234,7 +238,7 @@ mod tests {
         let v = [View { proj: &proj, gbuf: &g, ao: &ao, border: &b, pose: DMat4::IDENTITY }];
         let prm = MergeParams { neighbors: 3, dmin: 0.0, dmax: 4.0, border_px: 64.0 };
         let own = vec![0.7f32; 9];
-        let (out, st) = merge_scan(0, &pts, &[0.05; 9], &own, &v, &[false], &prm);
+        let (out, st) = merge_scan(0, &pts, &[0.05; 9], &own, &v, &[false], &prm, &|_| {});
         assert!(out.iter().all(|&a| a == 0.7));
         assert_eq!(st.zero_weight, 9);
     }
@@ -250,7 +254,7 @@ mod tests {
         let prm = MergeParams { neighbors: 3, dmin: 0.0, dmax: 0.0, border_px: 64.0 };
         // Centre point: with t = 0.06, neighbours at 0.1 m (edge) pass 2t = 0.12, diagonal
         // ones at 0.1414 do not → average of pixels 1,3,4,5,7 = (0.1+0.3+0.4+0.5+0.7)/5 = 0.4.
-        let (out, _) = merge_scan(0, &pts[4..5], &[0.06], &[0.0], &v, &[false], &prm);
+        let (out, _) = merge_scan(0, &pts[4..5], &[0.06], &[0.0], &v, &[false], &prm, &|_| {});
         assert!((out[0] - 0.4).abs() < 1e-6, "{}", out[0]);
     }
 }

@@ -1107,28 +1107,58 @@ mod tests {
         }
     }
 
+    /// Process CPU time (user + system) in seconds, from `/proc/self/stat` (Linux).
+    fn cpu_seconds() -> f64 {
+        let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+        let rest = stat.rsplit(')').next().unwrap_or("");
+        let f: Vec<f64> = rest
+            .split_whitespace()
+            .filter_map(|x| x.parse().ok())
+            .collect();
+        // After the command name: state is not numeric, so utime/stime are fields 11, 12.
+        (f.get(10).copied().unwrap_or(0.0) + f.get(11).copied().unwrap_or(0.0)) / 100.0
+    }
+
     #[test]
     #[ignore]
     fn speed_one_megapixel() {
-        let (g, proj) = heightfield(1024, 1024, 1.0, waves);
-        let prm = params(8, 8, 12.0);
-        let _ = ssao(&g, &proj, &prm);
-        let t = std::time::Instant::now();
-        let reps = 5;
-        for _ in 0..reps {
-            let _ = ssao(&g, &proj, &prm);
+        // Run alone: `cargo test --release --lib ssao::horizon::tests::speed -- --ignored`.
+        // Reports wall time and CPU time (the machine may be shared).
+        let persp = camera(1024, 1024, 35f32.to_radians());
+        let g_persp = cast(&persp, |o, d| {
+            let f = plane(o, d, Vec3::Z, -3.0).map(|t| (t, Vec3::Z));
+            let wl = plane(o, d, Vec3::NEG_Y, -4.0).map(|t| (t, Vec3::NEG_Y));
+            match (f, wl) {
+                (Some(a), Some(b)) => Some(if a.0 < b.0 { a } else { b }),
+                (a, b) => a.or(b),
+            }
+        });
+        let (g_waves, ortho) = heightfield(1024, 1024, 1.0, waves);
+        let cases = [
+            ("ortho waves, t_max 12 px", &g_waves, &ortho, 12.0f32),
+            ("pinhole floor+wall, t_max 0.3", &g_persp, &persp, 0.3),
+        ];
+        for (name, g, proj, tmax) in cases {
+            let prm = params(8, 8, tmax);
+            let _ = ssao(g, proj, &prm);
+            let reps = 3;
+            let (t, c) = (std::time::Instant::now(), cpu_seconds());
+            for _ in 0..reps {
+                let _ = ssao(g, proj, &prm);
+            }
+            let wall = t.elapsed().as_secs_f64() / reps as f64;
+            let cpu = (cpu_seconds() - c) / reps as f64;
+            let px = g.filled() as f64 * 1e-6;
+            eprintln!(
+                "{name}: {:.2} Mpx valid, 8×8: wall {:.3} s ({:.2} Mpx/s on {} threads), \
+                 CPU {:.3} s ({:.2} Mpx/s per core)",
+                px,
+                wall,
+                px / wall,
+                rayon::current_num_threads(),
+                cpu,
+                px / cpu
+            );
         }
-        let s = t.elapsed().as_secs_f64() / reps as f64;
-        let t2 = std::time::Instant::now();
-        let mut pp = prm;
-        pp.samples = 64;
-        let _ = crate::ssao::paper::ssao(&g, &proj, &pp);
-        eprintln!("paper 64 samples: {:.3} s", t2.elapsed().as_secs_f64());
-        eprintln!(
-            "1024² px, 8×8: {:.3} s/map, {:.2} Mpx/s on {} threads",
-            s,
-            1.048576 / s,
-            rayon::current_num_threads()
-        );
     }
 }
