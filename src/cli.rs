@@ -189,9 +189,9 @@ impl MergeArgs {
     pub fn into_config(self) -> Result<Config, String> {
         let pos = |name: &str, v: Option<f32>| -> Result<(), String> {
             match v {
-                Some(x) if !(x > 0.0 && x.is_finite()) => {
-                    Err(format!("--{name} must be a positive number of metres, got {x}"))
-                }
+                Some(x) if !(x > 0.0 && x.is_finite()) => Err(format!(
+                    "--{name} must be a positive number of metres, got {x}"
+                )),
                 _ => Ok(()),
             }
         };
@@ -207,7 +207,10 @@ impl MergeArgs {
             return Err(format!("--gamma must be positive, got {}", self.gamma));
         }
         if !(self.border_px > 0.0 && self.border_px.is_finite()) {
-            return Err(format!("--border-px must be positive, got {}", self.border_px));
+            return Err(format!(
+                "--border-px must be positive, got {}",
+                self.border_px
+            ));
         }
         Ok(Config {
             scans: self.scans,

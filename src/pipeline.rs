@@ -240,7 +240,11 @@ pub fn robust_diagonal(scans: &[Scan]) -> f64 {
 }
 
 /// Runs the per-view stages on one scan.
-pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> Result<PreparedView> {
+pub fn prepare_view(
+    scan: &Scan,
+    choice: ProjectionChoice,
+    prm: &SsaoParams,
+) -> Result<PreparedView> {
     let mut times = Vec::with_capacity(5);
     let mut t = Instant::now();
     let mut lap = |name: &'static str, t: &mut Instant| {
@@ -257,7 +261,9 @@ pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> 
     let need = invalid_normals.is_none_or(|k| k > 0);
     let toward = |p| proj.toward_sensor(p);
     let (est, radii) = match &scan.grid {
-        Some(g) if sensor.grid_pixels.is_some() => normals::estimate_grid(&scan.points, g, need, toward),
+        Some(g) if sensor.grid_pixels.is_some() => {
+            normals::estimate_grid(&scan.points, g, need, toward)
+        }
         _ => normals::estimate(&scan.points, need, toward),
     };
     let (normals, note) = match (&scan.normals, est) {
@@ -266,9 +272,18 @@ pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> 
                 .iter()
                 .zip(&est)
                 .zip(&scan.points)
-                .map(|((g, e), p)| if *g == Vec3::ZERO { *e } else { face(*g, proj.toward_sensor(*p)) })
+                .map(|((g, e), p)| {
+                    if *g == Vec3::ZERO {
+                        *e
+                    } else {
+                        face(*g, proj.toward_sensor(*p))
+                    }
+                })
                 .collect();
-            (n, format!("input, {} re-estimated", invalid_normals.unwrap_or(0)))
+            (
+                n,
+                format!("input, {} re-estimated", invalid_normals.unwrap_or(0)),
+            )
         }
         (Some(given), None) => (
             given
@@ -302,7 +317,8 @@ pub fn prepare_view(scan: &Scan, choice: ProjectionChoice, prm: &SsaoParams) -> 
     lap("gbuffer", &mut t);
     let ssao = ssao::compute(&gbuf, &proj, prm);
     lap("ssao", &mut t);
-    let border = crate::merge::border::border_distance(&gbuf.depth, gbuf.width, gbuf.height, proj.wrap_x);
+    let border =
+        crate::merge::border::border_distance(&gbuf.depth, gbuf.width, gbuf.height, proj.wrap_x);
     lap("border", &mut t);
     Ok(PreparedView {
         sensor,
@@ -423,7 +439,9 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
                 .iter()
                 .map(|b| !overlaps(&bounds[i], b, margin))
                 .collect();
-            merge::merge_scan(i, &s.points, &v.radii, &own, &mv, &skip, &mp, &|n| obs.advance(n))
+            merge::merge_scan(i, &s.points, &v.radii, &own, &mv, &skip, &mp, &|n| {
+                obs.advance(n)
+            })
         };
         results.push((own, ao, no_sample, st));
     }
@@ -451,13 +469,17 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
 
 /// World-space bounding box of a scan.
 fn world_bounds(s: &Scan) -> (DVec3, DVec3) {
-    let (lo, hi) = s.points.par_iter().fold(
-        || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-    ).reduce(
-        || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-        |a, b| (a.0.min(b.0), a.1.max(b.1)),
-    );
+    let (lo, hi) = s
+        .points
+        .par_iter()
+        .fold(
+            || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        )
+        .reduce(
+            || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |a, b| (a.0.min(b.0), a.1.max(b.1)),
+        );
     if !lo.is_finite() {
         return (DVec3::ZERO, DVec3::ZERO);
     }
@@ -495,9 +517,11 @@ impl Observer for Bars {
         }
         let pb = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
         pb.set_style(
-            ProgressStyle::with_template("{prefix:>8} [{bar:40}] {human_pos}/{human_len} points {elapsed_precise} ETA {eta}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> "),
+            ProgressStyle::with_template(
+                "{prefix:>8} [{bar:40}] {human_pos}/{human_len} points {elapsed_precise} ETA {eta}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
         );
         pb.set_prefix(name.to_string());
         if let Ok(mut b) = self.bar.lock() {
@@ -543,7 +567,11 @@ pub fn run(cfg: &Config) -> Result<Report> {
     let stems: Vec<String> = cfg
         .scans
         .iter()
-        .map(|p| p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default())
+        .map(|p| {
+            p.file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        })
         .collect();
     for (i, s) in stems.iter().enumerate() {
         if let Some(j) = stems[..i].iter().position(|t| t == s) {
@@ -561,7 +589,10 @@ pub fn run(cfg: &Config) -> Result<Report> {
     outputs.push(cfg.out_dir.join("report.json"));
     for o in &outputs {
         if cfg.scans.iter().any(|s| same_file(s, o)) {
-            return Err(Error::Param(format!("{}: output would overwrite an input", o.display())));
+            return Err(Error::Param(format!(
+                "{}: output would overwrite an input",
+                o.display()
+            )));
         }
         if o.exists() && !cfg.force {
             return Err(Error::Param(format!(
@@ -620,7 +651,10 @@ pub fn run(cfg: &Config) -> Result<Report> {
     for s in &scans {
         if s.is_empty() {
             return Err(Error::scan(
-                s.path.as_ref().map(|p| p.display().to_string()).unwrap_or(s.name.clone()),
+                s.path
+                    .as_ref()
+                    .map(|p| p.display().to_string())
+                    .unwrap_or(s.name.clone()),
                 "has no vertex with finite coordinates",
             ));
         }
@@ -658,7 +692,11 @@ pub fn run(cfg: &Config) -> Result<Report> {
             computed.ssao.tmax,
             computed.merge.dmin,
             computed.merge.dmax,
-            if computed.defaults_note.is_empty() { "as given" } else { computed.defaults_note.as_str() }
+            if computed.defaults_note.is_empty() {
+                "as given"
+            } else {
+                computed.defaults_note.as_str()
+            }
         );
     }
 
@@ -706,13 +744,19 @@ pub fn run(cfg: &Config) -> Result<Report> {
                 cfg.gamma,
             )?;
         }
-        let (mn, mx, sum) = r.ao.iter().fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
-            (a.0.min(v), a.1.max(v), a.2 + v as f64)
-        });
+        let (mn, mx, sum) =
+            r.ao.iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
+                    (a.0.min(v), a.1.max(v), a.2 + v as f64)
+                });
         let proj = &r.view.sensor.projection;
         report.scans.push(ScanReport {
             name: s.name.clone(),
-            input: s.path.as_ref().map(|p| p.display().to_string()).unwrap_or_default(),
+            input: s
+                .path
+                .as_ref()
+                .map(|p| p.display().to_string())
+                .unwrap_or_default(),
             output: out.display().to_string(),
             vertices: s.vertex_count,
             points: s.len(),

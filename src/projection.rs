@@ -299,7 +299,9 @@ impl Projection {
     /// Inverse of [`project`](Self::project): the local point at continuous pixel `(x, y)` and
     /// `depth`. Used by the virtual scanner and round-trip tests.
     pub fn unproject(&self, x: f32, y: f32, depth: f32) -> Vec3 {
-        self.ray(x, y).map(|(o, d)| o + d * depth).unwrap_or(Vec3::ZERO)
+        self.ray(x, y)
+            .map(|(o, d)| o + d * depth)
+            .unwrap_or(Vec3::ZERO)
     }
 
     /// The viewing ray through continuous pixel `(x, y)`: origin `o` and direction `d` such that
@@ -375,7 +377,8 @@ impl Projection {
     /// that it stays a disk on the sphere.
     #[inline]
     pub fn disk_radius(&self, r: f32, depth: f32, x: f32, y: f32) -> (f32, f32) {
-        let (rx, ry) = self.disk_radius_linear(r, depth, self.warp_y.as_ref().map_or(y, |w| w.invert(y)));
+        let (rx, ry) =
+            self.disk_radius_linear(r, depth, self.warp_y.as_ref().map_or(y, |w| w.invert(y)));
         // A warp stretches pixels locally: scale by its slope here.
         let sx = self.warp_x.as_ref().map_or(1.0, |w| w.slope_at(x));
         let sy = self.warp_y.as_ref().map_or(1.0, |w| w.slope_at(y));
@@ -395,10 +398,7 @@ impl Projection {
             }
             Model::Perspective { a, .. } => {
                 let t = angular_radius(r, depth).tan();
-                (
-                    t * a.row(0).length(),
-                    t * a.row(1).length(),
-                )
+                (t * a.row(0).length(), t * a.row(1).length())
             }
             Model::Ortho { a, b, .. } => (r * a.length(), r * b.length()),
         }

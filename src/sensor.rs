@@ -90,7 +90,11 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
                     grid.cols,
                     grid.rows,
                     projection.sensor_model(),
-                    if fit.warped { " with uneven row/column steps" } else { "" },
+                    if fit.warped {
+                        " with uneven row/column steps"
+                    } else {
+                        ""
+                    },
                     fit.rms,
                     if declared {
                         " (model declared by the input)"
@@ -337,7 +341,14 @@ fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
     }
     if want(ProjectionChoice::Perspective) {
         let mean = pts.iter().map(|p| p.normalize_or_zero()).sum::<DVec3>();
-        let mut axes = vec![DVec3::X, DVec3::NEG_X, DVec3::Y, DVec3::NEG_Y, DVec3::Z, DVec3::NEG_Z];
+        let mut axes = vec![
+            DVec3::X,
+            DVec3::NEG_X,
+            DVec3::Y,
+            DVec3::NEG_Y,
+            DVec3::Z,
+            DVec3::NEG_Z,
+        ];
         if mean.length() > 1e-9 {
             axes.push(mean.normalize());
         }
@@ -380,8 +391,11 @@ fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
         }
         // Fit the azimuth away from the seam, where a full circle's ±π ambiguity cannot
         // split a column; judge residuals modulo the period.
-        let inner: Vec<([f64; 2], f64)> =
-            ax.iter().copied().filter(|(f, _)| f[0].abs() < 0.75 * PI).collect();
+        let inner: Vec<([f64; 2], f64)> = ax
+            .iter()
+            .copied()
+            .filter(|(f, _)| f[0].abs() < 0.75 * PI)
+            .collect();
         let (Some(fx), Some(fy)) = (
             lstsq(if inner.len() >= 8 { &inner } else { &ax }),
             lstsq(&ay),
@@ -396,7 +410,10 @@ fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
                 d.min(period - d).powi(2)
             })
             .sum();
-        let sqy: f64 = ay.iter().map(|(g, y)| (fy[0] * g[0] + fy[1] - y).powi(2)).sum();
+        let sqy: f64 = ay
+            .iter()
+            .map(|(g, y)| (fy[0] * g[0] + fy[1] - y).powi(2))
+            .sum();
         let rms = (rms_of(sqx, ax.len()).powi(2) + rms_of(sqy, ay.len()).powi(2)).sqrt();
         out.push(Fit {
             projection: Projection {
@@ -628,13 +645,18 @@ fn auto_model(points: &[Vec3]) -> (SensorModel, String) {
             "no grid; point directions surround the origin".into(),
         );
     };
-    let mut ang: Vec<f64> = dirs.iter().map(|d| d.dot(m).clamp(-1.0, 1.0).acos()).collect();
+    let mut ang: Vec<f64> = dirs
+        .iter()
+        .map(|d| d.dot(m).clamp(-1.0, 1.0).acos())
+        .collect();
     ang.sort_by(f64::total_cmp);
     let q = ang[((ang.len() as f64 * 0.99) as usize).min(ang.len() - 1)].to_degrees();
     if q <= 60.0 {
         (
             SensorModel::Perspective,
-            format!("no grid; 99 % of point directions lie within {q:.0}° of their mean, a camera cone"),
+            format!(
+                "no grid; 99 % of point directions lie within {q:.0}° of their mean, a camera cone"
+            ),
         )
     } else {
         (
@@ -714,7 +736,11 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
             })
         }
         SensorModel::Perspective => {
-            let axis = pts.iter().map(|p| p.normalize()).sum::<DVec3>().try_normalize()?;
+            let axis = pts
+                .iter()
+                .map(|p| p.normalize())
+                .sum::<DVec3>()
+                .try_normalize()?;
             let rot = frame_with_axis(axis);
             let uv: Vec<(f64, f64, f64)> = pts
                 .iter()

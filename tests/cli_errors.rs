@@ -28,7 +28,11 @@ fn small_scan(dir: &Path, name: &str, xyz: &[[f64; 3]]) -> PathBuf {
     let y: Vec<f64> = xyz.iter().map(|p| p[1]).collect();
     let z: Vec<f64> = xyz.iter().map(|p| p[2]).collect();
     let ply = PlyFile::from_vertex_columns(
-        &[("x", ScalarType::F32, &x), ("y", ScalarType::F32, &y), ("z", ScalarType::F32, &z)],
+        &[
+            ("x", ScalarType::F32, &x),
+            ("y", ScalarType::F32, &y),
+            ("z", ScalarType::F32, &z),
+        ],
         &[],
     )
     .unwrap();
@@ -43,7 +47,11 @@ fn dome(n: usize) -> Vec<[f64; 3]> {
         .map(|i| {
             let a = i as f64 * 0.61803398875 * std::f64::consts::TAU;
             let e = (i as f64 / n as f64) * 1.2;
-            [3.0 * e.cos() * a.cos(), 3.0 * e.cos() * a.sin(), 3.0 * e.sin() - 1.0]
+            [
+                3.0 * e.cos() * a.cos(),
+                3.0 * e.cos() * a.sin(),
+                3.0 * e.sin() - 1.0,
+            ]
         })
         .collect()
 }
@@ -52,7 +60,12 @@ fn dome(n: usize) -> Vec<[f64; 3]> {
 fn missing_file_is_named() {
     let out = tempfile::tempdir().unwrap();
     let err = fails(
-        &["merge".into(), "-o".into(), s(out.path()), "no/such/scan.ply".into()],
+        &[
+            "merge".into(),
+            "-o".into(),
+            s(out.path()),
+            "no/such/scan.ply".into(),
+        ],
         "no/such/scan.ply",
     );
     assert_eq!(err.lines().count(), 1, "{err}");
@@ -64,12 +77,18 @@ fn not_a_ply_truncated_and_missing_coordinates() {
     let out = d.path().join("out");
     let txt = d.path().join("notes.ply");
     std::fs::write(&txt, "hello world\n").unwrap();
-    fails(&["merge".into(), "-o".into(), s(&out), s(&txt)], "notes.ply");
+    fails(
+        &["merge".into(), "-o".into(), s(&out), s(&txt)],
+        "notes.ply",
+    );
 
     let good = std::fs::read(fixture("3dtk-uos-3scans/scan000.ply")).unwrap();
     let cut = d.path().join("cut.ply");
     std::fs::write(&cut, &good[..good.len() / 2]).unwrap();
-    fails(&["merge".into(), "-o".into(), s(&out), s(&cut)], "truncated");
+    fails(
+        &["merge".into(), "-o".into(), s(&out), s(&cut)],
+        "truncated",
+    );
 
     let x = vec![1.0, 2.0];
     let noz = PlyFile::from_vertex_columns(
@@ -79,7 +98,10 @@ fn not_a_ply_truncated_and_missing_coordinates() {
     .unwrap();
     let p = d.path().join("noz.ply");
     noz.write_path(&p).unwrap();
-    fails(&["merge".into(), "-o".into(), s(&out), s(&p)], "no 'z' coordinate");
+    fails(
+        &["merge".into(), "-o".into(), s(&out), s(&p)],
+        "no 'z' coordinate",
+    );
     assert!(!out.exists(), "a failed run left an output directory");
 }
 
@@ -99,7 +121,11 @@ fn non_finite_points_are_skipped_counted_and_never_written() {
     assert_eq!(o.header.elements[0].count, 2998);
     let xyz = o.vertex_xyz().unwrap();
     assert!(xyz.iter().all(|p| p.iter().all(|v| v.is_finite())));
-    assert!(o.scalar_column("vertex", "ao").unwrap().iter().all(|a| (0.0..=1.0).contains(a)));
+    assert!(o
+        .scalar_column("vertex", "ao")
+        .unwrap()
+        .iter()
+        .all(|a| (0.0..=1.0).contains(a)));
     let rep: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(rep["scans"][0]["skipped_nonfinite"], 2);
@@ -116,13 +142,32 @@ fn alignment_mismatches_are_errors() {
     let id = "[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]";
     std::fs::write(&al, format!("{{\"a.ply\": {id}, \"c.ply\": {id}}}")).unwrap();
     fails(
-        &["merge".into(), "-o".into(), s(&out), "--align".into(), s(&al), s(&a), s(&b)],
+        &[
+            "merge".into(),
+            "-o".into(),
+            s(&out),
+            "--align".into(),
+            s(&al),
+            s(&a),
+            s(&b),
+        ],
         "poses.json",
     );
-    std::fs::write(&al, format!("{{\"a.ply\": {id}, \"b.ply\": [2,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]}}"))
-        .unwrap();
+    std::fs::write(
+        &al,
+        format!("{{\"a.ply\": {id}, \"b.ply\": [2,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]}}"),
+    )
+    .unwrap();
     let err = fails(
-        &["merge".into(), "-o".into(), s(&out), "--align".into(), s(&al), s(&a), s(&b)],
+        &[
+            "merge".into(),
+            "-o".into(),
+            s(&out),
+            "--align".into(),
+            s(&al),
+            s(&a),
+            s(&b),
+        ],
         "poses.json",
     );
     assert!(err.contains("scale") || err.contains("shear"), "{err}");
@@ -137,7 +182,10 @@ fn existing_outputs_need_force() {
     let args = ["merge", "-q", "--radius", "0.3", "-o", &s(&out), &s(&a)];
     assert!(mvao(&args).status.success());
     let first = std::fs::read(out.join("a.mvao.ply")).unwrap();
-    fails(&args.iter().map(|x| x.to_string()).collect::<Vec<_>>(), "--force");
+    fails(
+        &args.iter().map(|x| x.to_string()).collect::<Vec<_>>(),
+        "--force",
+    );
     let mut forced: Vec<&str> = args.to_vec();
     forced.push("--force");
     assert!(mvao(&forced).status.success());

@@ -15,7 +15,11 @@ fn compare(path: &std::path::Path) -> (f32, f32) {
     let (nt, rt) = normals::estimate(&scan.points, true, toward);
     let (ng, rg) = normals::estimate_grid(&scan.points, scan.grid.as_ref().unwrap(), true, toward);
     let (nt, ng) = (nt.unwrap(), ng.unwrap());
-    let mut dr: Vec<f32> = rt.iter().zip(&rg).map(|(a, b)| (a - b).abs() / a.max(1e-9)).collect();
+    let mut dr: Vec<f32> = rt
+        .iter()
+        .zip(&rg)
+        .map(|(a, b)| (a - b).abs() / a.max(1e-9))
+        .collect();
     let mut da: Vec<f32> = nt
         .iter()
         .zip(&ng)
@@ -28,7 +32,11 @@ fn compare(path: &std::path::Path) -> (f32, f32) {
 
 #[test]
 fn grid_neighbours_match_the_kd_tree() {
-    for p in plys("stanford-bunny").iter().take(3).chain(plys("3dtk-uos-3scans").iter()) {
+    for p in plys("stanford-bunny")
+        .iter()
+        .take(3)
+        .chain(plys("3dtk-uos-3scans").iter())
+    {
         let (dr, da) = compare(p);
         eprintln!("{}: radius {dr:.4}, normal {da:.2}°", p.display());
         assert!(dr < 0.05, "{}: median radius difference {dr}", p.display());

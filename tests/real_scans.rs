@@ -46,8 +46,13 @@ fn run_and_check(dir: &str, extra: &[&str]) -> (tempfile::TempDir, serde_json::V
             }
         }
         let ao = output.scalar_column("vertex", "ao").unwrap();
-        assert!(ao.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a)), "{stem}: ao range");
-        let (mn, mx) = ao.iter().fold((1f64, 0f64), |(a, b), &v| (a.min(v), b.max(v)));
+        assert!(
+            ao.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a)),
+            "{stem}: ao range"
+        );
+        let (mn, mx) = ao
+            .iter()
+            .fold((1f64, 0f64), |(a, b), &v| (a.min(v), b.max(v)));
         assert!(mx - mn > 0.2, "{stem}: ao nearly constant ({mn}..{mx})");
         let red = output.scalar_column("vertex", "red").unwrap();
         assert_eq!(red.len(), n);
@@ -98,21 +103,31 @@ fn bunny_merge_outputs_every_scan() {
         assert!(s["grid_fit_rms_px"].as_f64().unwrap() < 2.0);
     }
     assert!(report["alignment"].as_str().unwrap().ends_with("bun.conf"));
-    for key in ["read", "sensor", "normals", "gbuffer", "ssao", "border", "merge", "write"] {
+    for key in [
+        "read", "sensor", "normals", "gbuffer", "ssao", "border", "merge", "write",
+    ] {
         assert!(report["timings_s"][key].as_f64().is_some(), "timing {key}");
     }
 }
 
 #[test]
 fn bunny_concave_regions_are_darker() {
-    for (name, concave, convex) in concave_vs_convex("stanford-bunny", "stanford-bunny/bun.conf", 48) {
-        assert!(concave < convex - 0.02, "{name}: concave {concave} vs convex {convex}");
+    for (name, concave, convex) in
+        concave_vs_convex("stanford-bunny", "stanford-bunny/bun.conf", 48)
+    {
+        assert!(
+            concave < convex - 0.02,
+            "{name}: concave {concave} vs convex {convex}"
+        );
     }
 }
 
 #[test]
 fn uos_stations_are_aligned_by_mlp() {
-    let scans = load_aligned(&plys("3dtk-uos-3scans"), &fixture("3dtk-uos-3scans/alignment.mlp"));
+    let scans = load_aligned(
+        &plys("3dtk-uos-3scans"),
+        &fixture("3dtk-uos-3scans/alignment.mlp"),
+    );
     // SOURCE.md: scan001 within 3.0 cm of scan000; scan002 (3.4 m away, partial overlap) 8.3 cm.
     assert!(median_nn_to_others(&scans, 1) < 0.05);
     assert!(median_nn_to_others(&scans, 2) < 0.1);
@@ -134,7 +149,10 @@ fn uos_concave_regions_are_darker() {
     for (name, concave, convex) in
         concave_vs_convex("3dtk-uos-3scans", "3dtk-uos-3scans/alignment.mlp", 24)
     {
-        assert!(concave < convex, "{name}: concave {concave} vs convex {convex}");
+        assert!(
+            concave < convex,
+            "{name}: concave {concave} vs convex {convex}"
+        );
     }
 }
 

@@ -41,15 +41,28 @@ fn mean_where(scan: &Scan, ao: &[f32], pick: impl Fn(DVec3) -> bool) -> (f32, us
 }
 
 fn ortho_floor_scan() -> Scan {
-    let scene = Scene { prims: vec![floor()] };
-    let st = Station::ortho(DVec3::new(0.0, 0.0, 2.0), 0.0, DVec2::new(2.0, 2.0), 200, 200);
+    let scene = Scene {
+        prims: vec![floor()],
+    };
+    let st = Station::ortho(
+        DVec3::new(0.0, 0.0, 2.0),
+        0.0,
+        DVec2::new(2.0, 2.0),
+        200,
+        200,
+    );
     scan_scene(&scene, &st, 0.0, 1, "floor")
 }
 
 #[test]
 fn open_floor_reads_open_with_the_converging_estimator() {
     let s = ortho_floor_scan();
-    let c = pipeline::compute(&[s.clone()], &params(Estimator::Horizon, 0.1, 0.2), &Silent).unwrap();
+    let c = pipeline::compute(
+        std::slice::from_ref(&s),
+        &params(Estimator::Horizon, 0.1, 0.2),
+        &Silent,
+    )
+    .unwrap();
     let (m, n) = mean_where(&s, &c.scans[0].ao, |p| p.x.abs() < 1.5 && p.y.abs() < 1.5);
     assert!(n > 10_000);
     assert!(m > 0.99, "open floor reads {m}");
@@ -59,9 +72,17 @@ fn open_floor_reads_open_with_the_converging_estimator() {
 fn open_floor_reads_the_paper_bias() {
     // Spec: the paper's eq. 3–5 reads E[ρ] = 0.275 on an open floor for t_max = 2·r_s.
     let s = ortho_floor_scan();
-    let c = pipeline::compute(&[s.clone()], &params(Estimator::Paper, 0.1, 0.2), &Silent).unwrap();
+    let c = pipeline::compute(
+        std::slice::from_ref(&s),
+        &params(Estimator::Paper, 0.1, 0.2),
+        &Silent,
+    )
+    .unwrap();
     let (m, _) = mean_where(&s, &c.scans[0].ao, |p| p.x.abs() < 1.5 && p.y.abs() < 1.5);
-    assert!((m - 0.275).abs() < 0.02, "paper estimator on an open floor: {m}");
+    assert!(
+        (m - 0.275).abs() < 0.02,
+        "paper estimator on an open floor: {m}"
+    );
 }
 
 #[test]
@@ -73,16 +94,22 @@ fn concave_corner_is_darker_than_open_floor() {
         DVec3::new(0.0, 0.0, 3.0),
         DVec3::NEG_X,
     );
-    let scene = Scene { prims: vec![floor(), wall] };
+    let scene = Scene {
+        prims: vec![floor(), wall],
+    };
     let st = Station::equirect(DVec3::new(-1.5, 0.0, 1.5), 0.3, 1440, 720);
     let s = scan_scene(&scene, &st, 0.0, 1, "corner");
     for est in [Estimator::Paper, Estimator::Horizon] {
-        let c = pipeline::compute(&[s.clone()], &params(est, 0.2, 0.4), &Silent).unwrap();
+        let c =
+            pipeline::compute(std::slice::from_ref(&s), &params(est, 0.2, 0.4), &Silent).unwrap();
         let ao = &c.scans[0].ao;
         let on_floor = |p: DVec3| p.z.abs() < 1e-3 && p.y.abs() < 1.0;
         let (corner, _) = mean_where(&s, ao, |p| on_floor(p) && p.x > -0.12 && p.x < -0.02);
         let (open, _) = mean_where(&s, ao, |p| on_floor(p) && p.x > -3.2 && p.x < -2.6);
-        assert!(corner < open - 0.1, "{est:?}: corner {corner} vs open floor {open}");
+        assert!(
+            corner < open - 0.1,
+            "{est:?}: corner {corner} vs open floor {open}"
+        );
         assert!(ao.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a)));
     }
 }
@@ -96,8 +123,16 @@ fn occluder_seen_only_by_another_scan_darkens_the_merge() {
         min: DVec3::new(0.05, -0.5, 0.0),
         max: DVec3::new(1.0, 0.5, 0.5),
     };
-    let scene = Scene { prims: vec![floor(), boxp] };
-    let a = Station::ortho(DVec3::new(-0.5, 0.0, 2.0), 0.0, DVec2::new(0.5, 0.5), 100, 100);
+    let scene = Scene {
+        prims: vec![floor(), boxp],
+    };
+    let a = Station::ortho(
+        DVec3::new(-0.5, 0.0, 2.0),
+        0.0,
+        DVec2::new(0.5, 0.5),
+        100,
+        100,
+    );
     let b = Station::perspective(
         DVec3::new(-1.2, 0.0, 1.0),
         DVec3::new(0.0, 0.0, 0.1),
@@ -118,7 +153,10 @@ fn occluder_seen_only_by_another_scan_darkens_the_merge() {
     let (ssao_a, n) = mean_where(&scans[0], &r.ssao, near);
     let (mvao_a, _) = mean_where(&scans[0], &r.ao, near);
     assert!(n > 50);
-    assert!(mvao_a < ssao_a - 0.015, "MVAO {mvao_a} vs A's SSAO {ssao_a}");
+    assert!(
+        mvao_a < ssao_a - 0.015,
+        "MVAO {mvao_a} vs A's SSAO {ssao_a}"
+    );
     let darker = scans[0]
         .points
         .iter()
@@ -138,7 +176,7 @@ fn occluder_seen_only_by_another_scan_darkens_the_merge() {
 fn merge_is_deterministic_for_a_seed() {
     let s = ortho_floor_scan();
     let p = params(Estimator::Paper, 0.1, 0.2);
-    let a = pipeline::compute(&[s.clone()], &p, &Silent).unwrap();
-    let b = pipeline::compute(&[s.clone()], &p, &Silent).unwrap();
+    let a = pipeline::compute(std::slice::from_ref(&s), &p, &Silent).unwrap();
+    let b = pipeline::compute(std::slice::from_ref(&s), &p, &Silent).unwrap();
     assert_eq!(a.scans[0].ao, b.scans[0].ao);
 }

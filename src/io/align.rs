@@ -89,7 +89,8 @@ pub fn find_alignment_beside(scans: &[PathBuf]) -> Result<Option<PathBuf>> {
             let item = item.map_err(|e| Error::io(dir, e))?;
             let name = item.file_name();
             let name = name.to_string_lossy();
-            if name.starts_with('.') {
+            // Hidden files and mvao's own report are never alignments.
+            if name.starts_with('.') || name == "report.json" {
                 continue;
             }
             let p = item.path();
@@ -419,10 +420,8 @@ fn parse_mlp(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
                     format!("line {}: mesh '{name}' has no MLMatrix44", line_of(pos)),
                 ));
             }
-            Event::Start(e) if e.local_name().as_ref() == b"MLMatrix44" => {
-                if mesh.is_some() {
-                    matrix = Some(String::new());
-                }
+            Event::Start(e) if e.local_name().as_ref() == b"MLMatrix44" && mesh.is_some() => {
+                matrix = Some(String::new());
             }
             Event::Text(t) => {
                 if let Some(m) = matrix.as_mut() {

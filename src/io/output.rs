@@ -135,7 +135,14 @@ mod tests {
     fn preview_is_a_png() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("a.png");
-        write_preview(&p, 3, 2, &[Some(1.0), None, Some(0.0), None, None, Some(0.5)], 1.0).unwrap();
+        write_preview(
+            &p,
+            3,
+            2,
+            &[Some(1.0), None, Some(0.0), None, None, Some(0.5)],
+            1.0,
+        )
+        .unwrap();
         let bytes = std::fs::read(&p).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
     }

@@ -631,7 +631,11 @@ impl ScalarType {
     /// rounded and clamped (Rust's float-to-int `as` saturates); floats are kept as they are.
     #[inline]
     fn encode(self, v: f64) -> Encoded {
-        let v = if v.is_nan() && self.int_range().is_some() { 0.0 } else { v };
+        let v = if v.is_nan() && self.int_range().is_some() {
+            0.0
+        } else {
+            v
+        };
         let mut e = Encoded {
             buf: [0; 8],
             len: self.size(),
@@ -815,8 +819,9 @@ impl Source<'_> {
 
     /// How many bytes it is safe to reserve for data still to be read.
     fn reserve_cap(&self) -> usize {
-        self.remaining()
-            .map_or(UNKNOWN_LEN_CAP, |r| usize::try_from(r).unwrap_or(usize::MAX))
+        self.remaining().map_or(UNKNOWN_LEN_CAP, |r| {
+            usize::try_from(r).unwrap_or(usize::MAX)
+        })
     }
 
     /// One header line (with its line ending) into `line`; 0 at end of file.
@@ -1046,18 +1051,16 @@ fn parse_header(src: &mut Source) -> Result<Header> {
                         kind: PropertyKind::Scalar(ty(t)?),
                     },
                     _ => {
-                        return Err(src.err(format!(
-                            "line {line_no}: malformed property line '{text}'"
-                        )))
+                        return Err(
+                            src.err(format!("line {line_no}: malformed property line '{text}'"))
+                        )
                     }
                 };
                 el.props.push(prop);
             }
             "end_header" => break,
             other => {
-                return Err(src.err(format!(
-                    "line {line_no}: unknown header keyword '{other}'"
-                )))
+                return Err(src.err(format!("line {line_no}: unknown header keyword '{other}'")))
             }
         }
     }
@@ -1268,7 +1271,10 @@ fn parse_ascii(tok: &[u8], t: ScalarType) -> std::result::Result<Encoded, AsciiP
         ScalarType::F32 => {
             let s = std::str::from_utf8(tok).map_err(|_| AsciiProblem::NotNumber)?;
             let v = s.parse::<f32>().map_err(|_| AsciiProblem::NotNumber)?;
-            let mut e = Encoded { buf: [0; 8], len: 4 };
+            let mut e = Encoded {
+                buf: [0; 8],
+                len: 4,
+            };
             e.buf[..4].copy_from_slice(&v.to_le_bytes());
             Ok(e)
         }
@@ -1479,7 +1485,10 @@ mod tests {
             p.scalar_column("vertex", "z").unwrap(),
             vec![0.0, f64::from(3e-3f32), 7.0]
         );
-        assert_eq!(p.scalar_column("vertex", "red").unwrap(), vec![255.0, 0.0, 12.0]);
+        assert_eq!(
+            p.scalar_column("vertex", "red").unwrap(),
+            vec![255.0, 0.0, 12.0]
+        );
         assert_eq!(
             p.scalar_column("vertex", "s").unwrap(),
             vec![-7.0, 32767.0, -32768.0]
@@ -1492,7 +1501,10 @@ mod tests {
         assert_eq!(p.data[0].bytes.len(), 3 * 15);
         let back = round_trip(&p);
         assert_same_content(&p, &back);
-        assert_eq!(back.vertex_xyz().unwrap()[1], [1.5, -2.25, f64::from(3e-3f32)]);
+        assert_eq!(
+            back.vertex_xyz().unwrap()[1],
+            [1.5, -2.25, f64::from(3e-3f32)]
+        );
     }
 
     /// (classic name, numeric name, little-endian bytes, big-endian bytes, value).
@@ -1562,8 +1574,7 @@ mod tests {
     fn big_endian_to_le_bit_exact_every_type() {
         let row = every_type_row();
         let mut be_head = String::from("ply\nformat binary_big_endian 1.0\nelement vertex 2\n");
-        let mut le_head =
-            String::from("ply\nformat binary_little_endian 1.0\nelement vertex 2\n");
+        let mut le_head = String::from("ply\nformat binary_little_endian 1.0\nelement vertex 2\n");
         let (mut be_body, mut le_body) = (Vec::new(), Vec::new());
         for (i, (classic, numeric, _, _, _)) in row.iter().enumerate() {
             be_head.push_str(&format!("property {numeric} p{i}\n"));
@@ -1624,7 +1635,11 @@ mod tests {
         };
         let mut be = 5f32.to_be_bytes().to_vec();
         let mut le = 5f32.to_le_bytes().to_vec();
-        for (list, flag) in [(&[0i32, 1, 2][..], 9u16), (&[], 8), (&[10, 11, 12, 13], 65535)] {
+        for (list, flag) in [
+            (&[0i32, 1, 2][..], 9u16),
+            (&[], 8),
+            (&[10, 11, 12, 13], 65535),
+        ] {
             be.push(list.len() as u8);
             le.push(list.len() as u8);
             for &i in list {
@@ -1654,7 +1669,10 @@ mod tests {
     fn range_grid_empty_and_single_lists() {
         let p = read_ok(RANGE_SCAN.as_bytes());
         let grid = p.list_column("range_grid", "vertex_indices").unwrap();
-        assert_eq!(grid, vec![vec![], vec![0], vec![], vec![1], vec![2], vec![]]);
+        assert_eq!(
+            grid,
+            vec![vec![], vec![0], vec![], vec![1], vec![2], vec![]]
+        );
         assert_eq!(p.data[1].bytes.len(), 6 + 3 * 4);
         assert_eq!(
             p.vertex_xyz().unwrap()[0],
@@ -1666,7 +1684,10 @@ mod tests {
         );
         let back = round_trip(&p);
         assert_same_content(&p, &back);
-        assert_eq!(back.list_column("range_grid", "vertex_indices").unwrap(), grid);
+        assert_eq!(
+            back.list_column("range_grid", "vertex_indices").unwrap(),
+            grid
+        );
     }
 
     #[test]
@@ -1682,7 +1703,10 @@ mod tests {
         assert_eq!(p.header.obj_info, vec!["num_cols 3", "num_rows 2"]);
         let back = round_trip(&p);
         assert_same_content(&p, &back);
-        assert_eq!(back.scalar_column("vertex", "x").unwrap(), Vec::<f64>::new());
+        assert_eq!(
+            back.scalar_column("vertex", "x").unwrap(),
+            Vec::<f64>::new()
+        );
     }
 
     #[test]
@@ -1702,15 +1726,23 @@ mod tests {
         assert_eq!(p.header.encoding, Encoding::BinaryLe);
         assert_eq!(p.header.comments, vec!["synthetic"]);
         // Overwrite keeps the existing type (u8): round, clamp, NaN -> 0.
-        p.set_scalar_column("vertex", "flag", ScalarType::F64, &[-3.0, 2.5, 300.0, f64::NAN])
-            .unwrap();
+        p.set_scalar_column(
+            "vertex",
+            "flag",
+            ScalarType::F64,
+            &[-3.0, 2.5, 300.0, f64::NAN],
+        )
+        .unwrap();
         assert_eq!(
             p.scalar_column("vertex", "flag").unwrap(),
             vec![0.0, 3.0, 255.0, 0.0]
         );
         p.set_scalar_column("vertex", "y", ScalarType::U8, &[0.1, 0.2, 0.3, 0.4])
             .unwrap();
-        assert_eq!(p.scalar_column("vertex", "y").unwrap(), vec![0.1, 0.2, 0.3, 0.4]);
+        assert_eq!(
+            p.scalar_column("vertex", "y").unwrap(),
+            vec![0.1, 0.2, 0.3, 0.4]
+        );
         // Append two new properties.
         p.set_scalar_column("vertex", "ao", ScalarType::F32, &[0.5, 0.25, f64::NAN, 1.0])
             .unwrap();
@@ -1733,13 +1765,24 @@ mod tests {
         assert_eq!(p.scalar_column("vertex", "x").unwrap(), x.to_vec());
         assert_eq!(
             p.vertex_xyz().unwrap(),
-            vec![[1.0, 0.1, 1.0], [2.0, 0.2, 2.0], [3.0, 0.3, 3.0], [4.0, 0.4, 4.0]]
+            vec![
+                [1.0, 0.1, 1.0],
+                [2.0, 0.2, 2.0],
+                [3.0, 0.3, 3.0],
+                [4.0, 0.4, 4.0]
+            ]
         );
         assert_same_content(&p, &round_trip(&p));
         // Errors.
-        assert!(p.set_scalar_column("vertex", "ao", ScalarType::F32, &[1.0]).is_err());
-        assert!(p.set_scalar_column("face", "ao", ScalarType::F32, &[]).is_err());
-        assert!(p.set_scalar_column("vertex", "a b", ScalarType::F32, &x).is_err());
+        assert!(p
+            .set_scalar_column("vertex", "ao", ScalarType::F32, &[1.0])
+            .is_err());
+        assert!(p
+            .set_scalar_column("face", "ao", ScalarType::F32, &[])
+            .is_err());
+        assert!(p
+            .set_scalar_column("vertex", "a b", ScalarType::F32, &x)
+            .is_err());
     }
 
     #[test]
@@ -1757,17 +1800,20 @@ mod tests {
             .unwrap();
         p.set_scalar_column("vertex", "ao", ScalarType::U16, &[1.4, 70000.0, f64::NAN])
             .unwrap();
-        assert_eq!(p.scalar_column("vertex", "y").unwrap(), vec![-2.0, -5.0, 0.5]);
-        assert_eq!(p.scalar_column("vertex", "ao").unwrap(), vec![1.0, 65535.0, 0.0]);
+        assert_eq!(
+            p.scalar_column("vertex", "y").unwrap(),
+            vec![-2.0, -5.0, 0.5]
+        );
+        assert_eq!(
+            p.scalar_column("vertex", "ao").unwrap(),
+            vec![1.0, 65535.0, 0.0]
+        );
         assert_eq!(
             p.list_column("vertex", "nb").unwrap(),
             vec![vec![7, 8], vec![], vec![9]]
         );
         assert_eq!(p.scalar_column("vertex", "z").unwrap(), vec![3.0, 6.0, 9.0]);
-        assert_eq!(
-            p.data[0].row_offsets.as_deref(),
-            Some(&[0, 23, 38, 57][..])
-        );
+        assert_eq!(p.data[0].row_offsets.as_deref(), Some(&[0, 23, 38, 57][..]));
         assert!(p
             .set_scalar_column("vertex", "nb", ScalarType::U8, &[1.0, 2.0, 3.0])
             .is_err());
@@ -1779,7 +1825,10 @@ mod tests {
         let head = "ply\nformat binary_little_endian 1.0\nelement vertex 4\n\
                     property float x\nproperty float y\nend_header\n";
         let msg = format_err(&ply(head, &[0u8; 8 * 2 + 5]));
-        assert_eq!(msg, "truncated: element 'vertex' has 4 rows but data ends in row 2");
+        assert_eq!(
+            msg,
+            "truncated: element 'vertex' has 4 rows but data ends in row 2"
+        );
 
         let head = "ply\nformat binary_big_endian 1.0\nelement face 3\n\
                     property list uchar int vertex_indices\nend_header\n";
@@ -1791,7 +1840,10 @@ mod tests {
         );
         body.truncate(5);
         let msg = format_err(&ply(head, &body));
-        assert_eq!(msg, "truncated: element 'face' has 3 rows but data ends in row 1");
+        assert_eq!(
+            msg,
+            "truncated: element 'face' has 3 rows but data ends in row 1"
+        );
 
         let src = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n\
                    property float y\nend_header\n1 2\n3 4\n5";
@@ -1900,7 +1952,10 @@ mod tests {
         let head = "ply\nformat binary_little_endian 1.0\nelement face 1\n\
                     property list uint int v\nend_header\n";
         let msg = format_err(&ply(head, &[0xff, 0xff, 0xff, 0xff, 1, 2, 3, 4]));
-        assert!(msg.starts_with("truncated: element 'face' has 1 rows"), "{msg}");
+        assert!(
+            msg.starts_with("truncated: element 'face' has 1 rows"),
+            "{msg}"
+        );
         // Negative list count.
         let head = "ply\nformat binary_little_endian 1.0\nelement face 1\n\
                     property list int int v\nend_header\n";
@@ -2029,7 +2084,10 @@ mod tests {
             &[],
         )
         .unwrap();
-        assert_eq!(q.vertex_xyz().unwrap(), vec![[-300.0, -0.5, 1.0], [7.0, 0.25, 2.0]]);
+        assert_eq!(
+            q.vertex_xyz().unwrap(),
+            vec![[-300.0, -0.5, 1.0], [7.0, 0.25, 2.0]]
+        );
         let r = PlyFile::from_vertex_columns(
             &[("x", ScalarType::F64, &x), ("y", ScalarType::F64, &y)],
             &[],
@@ -2106,8 +2164,12 @@ mod tests {
         assert!(!dir.path().join("bad.ply").exists());
         assert!(p.scalar_column("vertex", "x").is_none());
         assert!(p.vertex_xyz().is_none());
-        assert!(p.set_scalar_column("vertex", "x", ScalarType::F32, &x).is_err());
-        assert!(p.set_scalar_column("vertex", "n", ScalarType::F32, &x).is_err());
+        assert!(p
+            .set_scalar_column("vertex", "x", ScalarType::F32, &x)
+            .is_err());
+        assert!(p
+            .set_scalar_column("vertex", "n", ScalarType::F32, &x)
+            .is_err());
         p.data[0].row_offsets = Some(vec![0, 5, 2, 11]);
         assert!(p.scalar_column("vertex", "x").is_none());
         assert!(p.write_path(&out).is_err());
@@ -2131,7 +2193,10 @@ mod tests {
         le.write_path(&lep).unwrap();
         seeds.push(std::fs::read(&lep).unwrap());
         let mut be = std::fs::read(&lep).unwrap();
-        let pos = be.windows(20).position(|w| w == b"binary_little_endian").unwrap();
+        let pos = be
+            .windows(20)
+            .position(|w| w == b"binary_little_endian")
+            .unwrap();
         be.splice(pos..pos + 20, b"binary_big_endian".iter().copied());
         seeds.push(be);
         let mut state = 0x9e37_79b9_7f4a_7c15u64;
@@ -2149,7 +2214,10 @@ mod tests {
                 match rnd() % 5 {
                     0 => b.truncate(at),
                     1 if !b.is_empty() => b[at] = rnd() as u8,
-                    2 => b.insert(at.min(b.len()), b"0123456789 -\n\xff"[(rnd() % 14) as usize]),
+                    2 => b.insert(
+                        at.min(b.len()),
+                        b"0123456789 -\n\xff"[(rnd() % 14) as usize],
+                    ),
                     3 if !b.is_empty() => b[at] ^= 1 << (rnd() % 8),
                     _ => {
                         let digits = format!("{}", rnd());
@@ -2176,7 +2244,9 @@ mod tests {
     }
 
     fn fixture(rel: &str) -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(rel)
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures")
+            .join(rel)
     }
 
     /// The binary copies of the Stanford bunny scans keep every vertex and the full
@@ -2198,8 +2268,14 @@ mod tests {
         for (name, n) in scans {
             let p = PlyFile::read_path(&fixture(&format!("stanford-bunny/{name}.ply"))).unwrap();
             assert_eq!(p.header.encoding, Encoding::BinaryLe, "{name}");
-            assert!(p.header.obj_info.iter().any(|o| o == "num_cols 512"), "{name}");
-            assert!(p.header.obj_info.iter().any(|o| o == "num_rows 400"), "{name}");
+            assert!(
+                p.header.obj_info.iter().any(|o| o == "num_cols 512"),
+                "{name}"
+            );
+            assert!(
+                p.header.obj_info.iter().any(|o| o == "num_rows 400"),
+                "{name}"
+            );
             let xyz = p.vertex_xyz().unwrap();
             assert_eq!(xyz.len(), n, "{name}");
             let grid = p.list_column("range_grid", "vertex_indices").unwrap();
@@ -2228,8 +2304,16 @@ mod tests {
             assert_eq!(p.vertex_xyz().unwrap().len(), 81360, "{name}");
             let row = p.scalar_column("vertex", "row").unwrap();
             let col = p.scalar_column("vertex", "col").unwrap();
-            assert_eq!(row.iter().copied().fold(f64::MIN, f64::max), 225.0, "{name}");
-            assert_eq!(col.iter().copied().fold(f64::MIN, f64::max), 359.0, "{name}");
+            assert_eq!(
+                row.iter().copied().fold(f64::MIN, f64::max),
+                225.0,
+                "{name}"
+            );
+            assert_eq!(
+                col.iter().copied().fold(f64::MIN, f64::max),
+                359.0,
+                "{name}"
+            );
             assert_eq!(row.iter().copied().fold(f64::MAX, f64::min), 0.0, "{name}");
         }
     }

@@ -61,7 +61,9 @@ impl PlyFile {
     /// Keeps only the vertices with `keep[i]`, renumbering vertex references elsewhere.
     pub fn retain_vertices(mut self, keep: &[bool]) -> Result<PlyFile> {
         let bad = |m: &str| Error::Param(format!("cannot drop vertices: {m}"));
-        let vi = self.element("vertex").ok_or_else(|| bad("no vertex element"))?;
+        let vi = self
+            .element("vertex")
+            .ok_or_else(|| bad("no vertex element"))?;
         let n = self.header.elements[vi].count;
         if keep.len() != n {
             return Err(bad("mask length differs from the vertex count"));

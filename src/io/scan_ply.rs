@@ -54,10 +54,15 @@ pub fn scan_from_ply(ply: &PlyFile, path: &Path) -> Result<Scan> {
 
     let mut points = Vec::with_capacity(vertex_count);
     let mut source_index = Vec::with_capacity(vertex_count);
-    let mut normals = normals_in.as_ref().map(|_| Vec::with_capacity(vertex_count));
-    let mut cells = grid_cells
+    let mut normals = normals_in
         .as_ref()
-        .map(|_| (Vec::with_capacity(vertex_count), Vec::with_capacity(vertex_count)));
+        .map(|_| Vec::with_capacity(vertex_count));
+    let mut cells = grid_cells.as_ref().map(|_| {
+        (
+            Vec::with_capacity(vertex_count),
+            Vec::with_capacity(vertex_count),
+        )
+    });
     let mut skipped = 0usize;
     for (i, p) in xyz.iter().enumerate() {
         let v = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);

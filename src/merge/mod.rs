@@ -186,7 +186,13 @@ mod tests {
             false,
         );
         let pts = (0..9)
-            .map(|i| Vec3::new(((i % 3) as f32 - 1.0) * 0.1, ((i / 3) as f32 - 1.0) * 0.1, 0.0))
+            .map(|i| {
+                Vec3::new(
+                    ((i % 3) as f32 - 1.0) * 0.1,
+                    ((i / 3) as f32 - 1.0) * 0.1,
+                    0.0,
+                )
+            })
             .collect();
         (proj, pts)
     }
@@ -210,10 +216,27 @@ mod tests {
         let pose0 = DMat4::from_translation(DVec3::new(5.0, 0.0, 0.0));
         let pose1 = DMat4::from_translation(DVec3::new(5.0, 0.0, 0.0));
         let views = [
-            View { proj: &proj, gbuf: &g, ao: &ao0, border: &b0, pose: pose0 },
-            View { proj: &proj, gbuf: &g, ao: &ao1, border: &b1, pose: pose1 },
+            View {
+                proj: &proj,
+                gbuf: &g,
+                ao: &ao0,
+                border: &b0,
+                pose: pose0,
+            },
+            View {
+                proj: &proj,
+                gbuf: &g,
+                ao: &ao1,
+                border: &b1,
+                pose: pose1,
+            },
         ];
-        let prm = MergeParams { neighbors: 1, dmin: 0.0, dmax: 4.0, border_px: 64.0 };
+        let prm = MergeParams {
+            neighbors: 1,
+            dmin: 0.0,
+            dmax: 4.0,
+            border_px: 64.0,
+        };
         let own = vec![0.2f32; 9];
         let (ao, st) = merge_scan(0, &pts, &rad, &own, &views, &[false, false], &prm, &|_| {});
         // w_d = 1 − 2/4 = 0.5 for both, w_n = 1, w_b = 1 and 0.25:
@@ -235,8 +258,19 @@ mod tests {
         let g = rasterize(3, 3, &px, &[2.0; 9], &pts, &n, &[0.05; 9]);
         let ao = vec![0.3f32; 9];
         let b = vec![100.0f32; 9];
-        let v = [View { proj: &proj, gbuf: &g, ao: &ao, border: &b, pose: DMat4::IDENTITY }];
-        let prm = MergeParams { neighbors: 3, dmin: 0.0, dmax: 4.0, border_px: 64.0 };
+        let v = [View {
+            proj: &proj,
+            gbuf: &g,
+            ao: &ao,
+            border: &b,
+            pose: DMat4::IDENTITY,
+        }];
+        let prm = MergeParams {
+            neighbors: 3,
+            dmin: 0.0,
+            dmax: 4.0,
+            border_px: 64.0,
+        };
         let own = vec![0.7f32; 9];
         let (out, st) = merge_scan(0, &pts, &[0.05; 9], &own, &v, &[false], &prm, &|_| {});
         assert!(out.iter().all(|&a| a == 0.7));
@@ -250,8 +284,19 @@ mod tests {
         let g = rasterize(3, 3, &px, &[2.0; 9], &pts, &[Vec3::Z; 9], &[0.06; 9]);
         let ao: Vec<f32> = (0..9).map(|i| i as f32 / 10.0).collect();
         let b = vec![1000.0f32; 9];
-        let v = [View { proj: &proj, gbuf: &g, ao: &ao, border: &b, pose: DMat4::IDENTITY }];
-        let prm = MergeParams { neighbors: 3, dmin: 0.0, dmax: 0.0, border_px: 64.0 };
+        let v = [View {
+            proj: &proj,
+            gbuf: &g,
+            ao: &ao,
+            border: &b,
+            pose: DMat4::IDENTITY,
+        }];
+        let prm = MergeParams {
+            neighbors: 3,
+            dmin: 0.0,
+            dmax: 0.0,
+            border_px: 64.0,
+        };
         // Centre point: with t = 0.06, neighbours at 0.1 m (edge) pass 2t = 0.12, diagonal
         // ones at 0.1414 do not → average of pixels 1,3,4,5,7 = (0.1+0.3+0.4+0.5+0.7)/5 = 0.4.
         let (out, _) = merge_scan(0, &pts[4..5], &[0.06], &[0.0], &v, &[false], &prm, &|_| {});

@@ -89,13 +89,41 @@ mod tests {
         let b = Vec4::new(0.0, 0.0, 10.0, 1.0);
         let q = Vec3::ZERO;
         // within 2t (t = 0.1): distance 0.15
-        assert!(corresponds(q, Vec3::new(0.15, 0.0, 0.0), Vec3::Z, 0.1, 0.05, b));
+        assert!(corresponds(
+            q,
+            Vec3::new(0.15, 0.0, 0.0),
+            Vec3::Z,
+            0.1,
+            0.05,
+            b
+        ));
         // beyond 2t
-        assert!(!corresponds(q, Vec3::new(0.25, 0.0, 0.0), Vec3::Z, 0.1, 0.05, b));
+        assert!(!corresponds(
+            q,
+            Vec3::new(0.25, 0.0, 0.0),
+            Vec3::Z,
+            0.1,
+            0.05,
+            b
+        ));
         // facing away from scanner i
-        assert!(!corresponds(q, Vec3::new(0.1, 0.0, 0.0), Vec3::NEG_Z, 0.1, 0.1, b));
+        assert!(!corresponds(
+            q,
+            Vec3::new(0.1, 0.0, 0.0),
+            Vec3::NEG_Z,
+            0.1,
+            0.1,
+            b
+        ));
         // sensor at infinity along +z
         let inf = Vec4::new(0.0, 0.0, 1.0, 0.0);
-        assert!(corresponds(q, Vec3::new(0.1, 0.0, 0.0), Vec3::Z, 0.1, 0.1, inf));
+        assert!(corresponds(
+            q,
+            Vec3::new(0.1, 0.0, 0.0),
+            Vec3::Z,
+            0.1,
+            0.1,
+            inf
+        ));
     }
 }

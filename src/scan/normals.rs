@@ -298,7 +298,10 @@ mod tests {
     fn degenerate_neighbourhoods_fall_back_to_sensor_direction() {
         let dup = vec![Vec3::new(1.0, 0.0, 0.0); 40];
         let (n, r) = estimate(&dup, true, |p| (-p).normalize());
-        assert!(n.unwrap().iter().all(|v| (*v - Vec3::NEG_X).length() < 1e-6));
+        assert!(n
+            .unwrap()
+            .iter()
+            .all(|v| (*v - Vec3::NEG_X).length() < 1e-6));
         assert!(r.iter().all(|&x| x == MIN_RADIUS));
         let line: Vec<Vec3> = (0..40).map(|i| Vec3::new(i as f32, 0.0, 5.0)).collect();
         let (n, _) = estimate(&line, true, |_| Vec3::Y);

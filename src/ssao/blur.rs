@@ -60,7 +60,9 @@ mod tests {
         GBuffer {
             width: w,
             height: h,
-            point: (0..w * h).map(|i| if valid(i) { i as u32 } else { EMPTY }).collect(),
+            point: (0..w * h)
+                .map(|i| if valid(i) { i as u32 } else { EMPTY })
+                .collect(),
             ..Default::default()
         }
     }
@@ -68,7 +70,9 @@ mod tests {
     #[test]
     fn constant_stays_constant_and_empty_is_ignored() {
         let g = gb(7, 5, |i| i % 3 != 0);
-        let ao: Vec<f32> = (0..35).map(|i| if i % 3 == 0 { 0.0 } else { 0.6 }).collect();
+        let ao: Vec<f32> = (0..35)
+            .map(|i| if i % 3 == 0 { 0.0 } else { 0.6 })
+            .collect();
         let b = gaussian5(&ao, &g, false);
         for (i, v) in b.iter().enumerate() {
             if i % 3 != 0 {
@@ -86,8 +90,8 @@ mod tests {
         ao[12] = 256.0;
         let b = gaussian5(&ao, &g, false);
         assert!((b[12] - 36.0).abs() < 1e-4); // 256·6·6/256
-        // corner pixel (0,0): sees the impulse at (+2,+2) with weight 1·1 over its 3×3 valid
-        // window sum (6+4+1)² = 121 → 256/121
+                                              // corner pixel (0,0): sees the impulse at (+2,+2) with weight 1·1 over its 3×3 valid
+                                              // window sum (6+4+1)² = 121 → 256/121
         assert!((b[0] - 256.0 / 121.0).abs() < 1e-4);
     }
 

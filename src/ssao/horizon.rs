@@ -75,9 +75,10 @@
 //! background behind it (limited to `t_max` by ignoring samples farther than `t_max`).
 
 use super::rng::Rng;
-use super::{rho, AoMap, SsaoParams};
-use crate::gbuffer::GBuffer;
+use super::{AoMap, SsaoParams};
+use crate::gbuffer::{GBuffer, EMPTY};
 use crate::projection::Projection;
+use glam::Vec3A;
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
 
@@ -113,19 +114,44 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
             no_sample: flag,
         };
     }
-    let ctx = Ctx::new(g, proj, prm);
-    ao.par_chunks_mut(g.width)
-        .zip(flag.par_chunks_mut(g.width))
+    // One 16-byte load per sample: the position, NaN where the pixel is empty.
+    let pts: Vec<Vec3A> = g
+        .position
+        .par_iter()
+        .zip(g.point.par_iter())
+        .map(|(&p, &i)| {
+            if i == EMPTY {
+                Vec3A::NAN
+            } else {
+                Vec3A::from(p)
+            }
+        })
+        .collect();
+    let ctx = Ctx::new(g, &pts, proj, prm);
+    // Bands of BAND rows in parallel, each walked in TILE-wide column blocks: neighbouring
+    // pixels read the same neighbourhood, so a block's working set stays in cache even for
+    // wide t_max disks.
+    const BAND: usize = 16;
+    const TILE: usize = 32;
+    let w = g.width;
+    ao.par_chunks_mut(w * BAND)
+        .zip(flag.par_chunks_mut(w * BAND))
         .enumerate()
-        .for_each(|(y, (arow, frow))| {
-            for x in 0..g.width {
-                let c = y * g.width + x;
-                if !g.is_valid(c) {
-                    continue;
-                }
-                match ctx.pixel(x, y, c) {
-                    Some(a) => arow[x] = a,
-                    None => frow[x] = true,
+        .for_each(|(band, (aband, fband))| {
+            let rows = aband.len() / w;
+            for x0 in (0..w).step_by(TILE) {
+                for r in 0..rows {
+                    let y = band * BAND + r;
+                    for x in x0..(x0 + TILE).min(w) {
+                        let c = y * w + x;
+                        if !g.is_valid(c) {
+                            continue;
+                        }
+                        match ctx.pixel(x, y, c) {
+                            Some(a) => aband[r * w + x] = a,
+                            None => fband[r * w + x] = true,
+                        }
+                    }
                 }
             }
         });
@@ -138,8 +164,12 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
 /// Everything a pixel evaluation needs, fixed for the whole map.
 struct Ctx<'a> {
     g: &'a GBuffer,
+    /// Positions, NaN where empty.
+    pts: &'a [Vec3A],
     proj: &'a Projection,
     tmax: f32,
+    /// `1/t_max` (0 when `t_max = ∞`: `ρ ≡ 0` in range).
+    inv_tmax: f32,
     /// `t_max²`, or 0 when `t_max ≤ 0` (every sample then ignored: `ρ ≡ 1`).
     tmax2: f32,
     directions: u32,
@@ -154,7 +184,7 @@ struct Ctx<'a> {
 }
 
 impl<'a> Ctx<'a> {
-    fn new(g: &'a GBuffer, proj: &'a Projection, prm: &SsaoParams) -> Ctx<'a> {
+    fn new(g: &'a GBuffer, pts: &'a [Vec3A], proj: &'a Projection, prm: &SsaoParams) -> Ctx<'a> {
         let tmax2 = if prm.tmax > 0.0 {
             prm.tmax * prm.tmax
         } else {
@@ -162,8 +192,10 @@ impl<'a> Ctx<'a> {
         };
         Ctx {
             g,
+            pts,
             proj,
             tmax: prm.tmax,
+            inv_tmax: 1.0 / prm.tmax,
             tmax2,
             directions: prm.directions.max(1),
             steps: prm.steps.max(1),
@@ -228,6 +260,7 @@ impl<'a> Ctx<'a> {
         let d1 = self.screen_delta(pc.x, pc.y, proj.project(p + e1 * eps));
         let d2 = self.screen_delta(pc.x, pc.y, proj.project(p + e2 * eps));
         let a = nrm.dot(view);
+        let (pa, na) = (Vec3A::from(p), Vec3A::from(nrm));
         let mut rng = Rng::new(self.seed, c as u64);
         let (mut sn, mut cs) = (TAU * rng.next_f32()).sin_cos();
         let (rot_s, rot_c) = (TAU / self.directions as f32).sin_cos();
@@ -281,24 +314,48 @@ impl<'a> Ctx<'a> {
             let (sa, sb, ir) = (slice.a, slice.b, slice.inv_r);
             let along = (u * sa - view * sb) * ir;
             let across = nrm * ir;
-            let fx = (along * sa + across * sb) * ir;
-            let fy = (across * sa - along * sb) * ir;
-            let mut hz = Horizon::new(slice);
-            for k in 0..count {
-                let t = t0 + (k as f32 + jitter) * step;
+            let fx = Vec3A::from((along * sa + across * sb) * ir);
+            let fy = Vec3A::from((across * sa - along * sb) * ir);
+            let mut hz = Horizon::new(slice, fx, fy);
+            // March in 48.16 fixed point: floor = arithmetic shift, no float → int per sample.
+            let t1 = t0 + jitter * step;
+            let (mut qx, mut qy) = (fixed(ox + dx * t1), fixed(oy + dy * t1));
+            let (sx, sy) = (fixed(dx * step), fixed(dy * step));
+            for _ in 0..count {
+                let (mut ix, iy) = (qx >> 16, qy >> 16);
+                (qx, qy) = (qx + sx, qy + sy);
                 // The line leaves the map once (y is monotone; x wraps or is clipped).
-                let Some(i) = self.pixel_at(ox + dx * t, oy + dy * t) else {
+                if iy as u64 >= self.h as u64 {
+                    break;
+                }
+                if ix as u64 >= self.w as u64 {
+                    if !self.wrap {
+                        break;
+                    }
+                    ix = ix.rem_euclid(self.w as i64);
+                }
+                let i = iy as usize * self.w as usize + ix as usize;
+                let Some(&q) = self.pts.get(i) else {
                     break;
                 };
-                if i == c || !g.is_valid(i) {
+                if i == c || q.x.is_nan() {
                     continue;
                 }
                 any = true;
-                let v = g.position[i] - p;
-                if !(v.length_squared() < self.tmax2) {
+                let v = q - pa;
+                let l2 = v.length_squared();
+                if !(l2 < self.tmax2) {
                     continue;
                 }
-                hz.add(v.dot(fx), v.dot(fy), nrm.dot(v) > 0.0, self.tmax);
+                // Heights within 10⁻⁵ rad of the tangent plane count as on it (rounding noise
+                // of a plane; the sliver they could block weighs ≤ 10⁻¹⁰).
+                let height = na.dot(v);
+                let height = if height * height > 1e-10 * l2 {
+                    height
+                } else {
+                    0.0
+                };
+                hz.add(v, height, self.inv_tmax);
             }
             sum_s += hz.value();
         }
@@ -331,11 +388,36 @@ impl<'a> Ctx<'a> {
     }
 }
 
+/// True when direction `(x, y)` (`x > 0`) has a larger cosine than `cos_h`, without a square
+/// root: `y/√(x²+y²) > cos_h`.
+#[inline]
+fn above_horizon(x: f32, y: f32, cos_h: f32) -> bool {
+    let (y2, k) = (y * y, cos_h * cos_h * (x * x + y * y));
+    if cos_h >= 0.0 {
+        y > 0.0 && y2 > k
+    } else {
+        y >= 0.0 || y2 < k
+    }
+}
+
+/// `ρ` as a function of `d/t_max`: `x = clamp(·, 0, 1)`, `x²(3 − 2x)` (same as [`super::rho`]).
+#[inline]
+fn smooth(x: f32) -> f32 {
+    let x = x.clamp(0.0, 1.0);
+    x * x * (3.0 - 2.0 * x)
+}
+
 /// `(x, y)` normalised; `None` when zero or not finite.
 #[inline]
 fn unit(x: f32, y: f32) -> Option<(f32, f32)> {
     let l = (x * x + y * y).sqrt();
     (l > 0.0 && l.is_finite()).then(|| (x / l, y / l))
+}
+
+/// `x` in 48.16 fixed point (saturating).
+#[inline]
+fn fixed(x: f32) -> i64 {
+    (x as f64 * 65536.0) as i64
 }
 
 /// `floor(x)` as an integer, saturating (no libm call).
@@ -505,6 +587,10 @@ enum Blocker {
 #[derive(Debug, Clone, Copy)]
 struct Horizon {
     slice: Slice,
+    /// The linear forms giving a sample's in-plane coordinates `x = v·fx` (outward) and
+    /// `y = v·fy` (towards the sensor) from its offset `v = s − p`.
+    fx: Vec3A,
+    fy: Vec3A,
     /// Current horizon angle from `V` (directions in `[h, hi]` are blocked), its
     /// `(sin, cos)` and `G(h)`.
     h: f32,
@@ -512,62 +598,74 @@ struct Horizon {
     g_h: f32,
     /// Σ of the blocked terms so far.
     acc: f32,
-    /// The previous sample's in-plane coordinates, if any.
-    prev: Option<(f32, f32)>,
+    /// The previous sample's offset (NaN before the first sample).
+    prev: Vec3A,
 }
 
 impl Horizon {
     #[inline]
-    fn new(slice: Slice) -> Horizon {
+    fn new(slice: Slice, fx: Vec3A, fy: Vec3A) -> Horizon {
         Horizon {
             slice,
+            fx,
+            fy,
             h: slice.hi,
             sc: slice.hi_sc,
             g_h: slice.g_hi,
             acc: 0.0,
-            prev: None,
+            prev: Vec3A::NAN,
         }
     }
 
-    /// Adds the next sample outward, at in-plane coordinates `x` (outward) and `y` (towards
-    /// the sensor); `above` = the sample is above `p`'s tangent plane. Only a sample above the
-    /// tangent plane, in front (`x > 0`) and above the horizon raises it; every sample is the
-    /// start of the next segment.
+    /// Adds the next sample outward, at offset `v` from `p` and height `n·v` above `p`'s
+    /// tangent plane. Only a sample above the tangent plane, in front (`x > 0`) and above the
+    /// horizon raises it; every sample is the start of the next segment.
     #[inline]
-    fn add(&mut self, x: f32, y: f32, above: bool, tmax: f32) {
-        if above && x > 0.0 {
-            let l = (x * x + y * y).sqrt();
-            let (mut s, mut c) = (x / l, y / l);
-            if c > self.sc.1 {
-                let sl = &self.slice;
-                let mut gk = fast_atan2(x, y).min(self.h);
-                if gk <= sl.lo {
-                    (gk, s, c) = (sl.lo, sl.lo_sc.0, sl.lo_sc.1);
-                }
-                let g_k = sl.g(s, c, gk);
-                let full = (self.g_h - g_k).max(0.0);
-                if full > 0.0 && tmax < f32::INFINITY {
-                    let blocker = match self.prev {
-                        Some((px, py)) if px > 0.0 => Blocker::Segment {
-                            px,
-                            py,
-                            qx: x,
-                            qy: y,
-                        },
-                        _ => Blocker::First {
-                            tau: (x * sl.a - y * sl.b) * sl.inv_r,
-                            eta: (x * sl.b + y * sl.a) * sl.inv_r,
-                            x,
-                        },
-                    };
-                    self.acc += full * sl.mean_rho(blocker, (s, c), self.sc, tmax);
-                }
-                self.h = gk;
-                self.sc = (s, c);
-                self.g_h = g_k;
+    fn add(&mut self, v: Vec3A, height: f32, inv_tmax: f32) {
+        if height > 0.0 {
+            let (x, y) = (v.dot(self.fx), v.dot(self.fy));
+            if x > 0.0 && above_horizon(x, y, self.sc.1) {
+                self.raise(x, y, inv_tmax);
             }
         }
-        self.prev = Some((x, y));
+        self.prev = v;
+    }
+
+    /// Raises the horizon to the sample at in-plane `(x, y)`, adding the blocked directions.
+    #[inline]
+    fn raise(&mut self, x: f32, y: f32, inv_tmax: f32) {
+        let sl = &self.slice;
+        let l = (x * x + y * y).sqrt();
+        let (mut s, mut c) = (x / l, y / l);
+        let mut gk = fast_atan2(x, y).min(self.h);
+        if gk <= sl.lo {
+            (gk, s, c) = (sl.lo, sl.lo_sc.0, sl.lo_sc.1);
+        }
+        let g_k = sl.g(s, c, gk);
+        let full = self.g_h - g_k;
+        // ρ ≡ 0 in range when t_max = ∞; a negligible sliver is not worth the quadrature.
+        if full > 1e-7 && inv_tmax > 0.0 {
+            let (px, py) = (self.prev.dot(self.fx), self.prev.dot(self.fy));
+            let blocker = if px > 0.0 {
+                Blocker::Segment {
+                    px,
+                    py,
+                    qx: x,
+                    qy: y,
+                }
+            } else {
+                // No previous sample (NaN) or one behind the line of V.
+                Blocker::First {
+                    tau: (x * sl.a - y * sl.b) * sl.inv_r,
+                    eta: (x * sl.b + y * sl.a) * sl.inv_r,
+                    x,
+                }
+            };
+            self.acc += full * sl.mean_rho(blocker, (s, c), self.sc, inv_tmax);
+        }
+        self.h = gk;
+        self.sc = (s, c);
+        self.g_h = g_k;
     }
 
     /// `S`: the blocked terms plus the open directions above the horizon.
@@ -581,19 +679,25 @@ impl Slice {
     /// The `f`-weighted mean of `ρ(r(γ))` over the arc from direction `e0` to `e1` (as
     /// `(sin, cos)`, at most π apart), by Simpson's rule on the end points and the bisector.
     #[inline]
-    fn mean_rho(&self, blocker: Blocker, e0: (f32, f32), e1: (f32, f32), tmax: f32) -> f32 {
+    fn mean_rho(&self, blocker: Blocker, e0: (f32, f32), e1: (f32, f32), inv_tmax: f32) -> f32 {
         let m = unit(e0.0 + e1.0, e0.1 + e1.1).unwrap_or((1.0, 0.0));
-        let (mut num, mut den) = (0.0f32, 0.0f32);
-        for (e, w) in [(e0, 1.0f32), (m, 4.0), (e1, 1.0)] {
-            let wf = w * self.f(e.0, e.1);
-            num += wf * rho(self.distance(blocker, e.0, e.1), tmax);
-            den += wf;
+        let rho_m = smooth(self.distance(blocker, m.0, m.1) * inv_tmax);
+        // Under ~8° the midpoint is as good (ρ and f are smooth over the arc).
+        if e0.0 * e1.0 + e0.1 * e1.1 > 0.99 {
+            return rho_m;
         }
-        if den > 0.0 {
-            num / den
-        } else {
-            rho(self.distance(blocker, m.0, m.1), tmax)
+        let (w0, wm, w1) = (
+            self.f(e0.0, e0.1),
+            4.0 * self.f(m.0, m.1),
+            self.f(e1.0, e1.1),
+        );
+        let den = w0 + wm + w1;
+        if !(den > 0.0) {
+            return rho_m;
         }
+        let r0 = smooth(self.distance(blocker, e0.0, e0.1) * inv_tmax);
+        let r1 = smooth(self.distance(blocker, e1.0, e1.1) * inv_tmax);
+        (w0 * r0 + wm * rho_m + w1 * r1) / den
     }
 }
 
@@ -602,6 +706,7 @@ mod tests {
     use super::*;
     use crate::gbuffer::rasterize;
     use crate::projection::Model;
+    use crate::ssao::rho;
     use crate::ssao::Estimator;
     use glam::{Mat2, Mat3, Vec2, Vec3};
 
@@ -984,6 +1089,15 @@ mod tests {
         f64::INFINITY
     }
 
+    /// Feeds a sample given by its in-plane coordinates (`fx = x̂`, `fy = ŷ`).
+    fn add_xy(hz: &mut Horizon, x: f32, y: f32, above: bool, inv_tmax: f32) {
+        hz.add(
+            Vec3A::new(x, y, 0.0),
+            if above { 1.0 } else { -1.0 },
+            inv_tmax,
+        );
+    }
+
     #[test]
     fn hand_computed_slices() {
         // Surface facing the sensor: a = 1, b = 0, the tangent plane at γ = π/2.
@@ -993,9 +1107,9 @@ mod tests {
         // (2.5,3.5) raises it to γ = atan(2.5/3.5): S/T = sin²γ = 6.25/18.5, i.e.
         // 1 − sin²(elevation).
         let samples = [(1.0, 1.0), (2.0, 1.5), (2.5, 3.5)];
-        let mut hz = Horizon::new(sl);
+        let mut hz = Horizon::new(sl, Vec3A::X, Vec3A::Y);
         for (x, y) in samples {
-            hz.add(x, y, true, f32::INFINITY);
+            add_xy(&mut hz, x, y, true, 1.0 / f32::INFINITY);
         }
         let want = 6.25 / 18.5;
         assert!(
@@ -1007,9 +1121,9 @@ mod tests {
         // sample), r = cos γ / sin²γ. [γ₃, 45°]: the segment (2,1.5)–(2.5,3.5),
         // r = cross(P, D) / cross(ω, D) with D = (0.5, 2). [0, γ₃]: open.
         let tmax = 4.0;
-        let mut hz = Horizon::new(sl);
+        let mut hz = Horizon::new(sl, Vec3A::X, Vec3A::Y);
         for (x, y) in samples {
-            hz.add(x, y, true, tmax);
+            add_xy(&mut hz, x, y, true, 1.0 / tmax);
         }
         let (g1, g3) = (FRAC_PI_2 / 2.0, 2.5f32.atan2(3.5));
         let parabola = |g: f64| g.cos() / (g.sin() * g.sin());
@@ -1025,10 +1139,10 @@ mod tests {
         let sl = Slice::new(0.8, 0.6).expect("slice");
         assert!((sl.hi - (0.6f32.atan2(0.8) + FRAC_PI_2)).abs() < 1e-6);
         assert!((sl.open() as f64 - numeric(&sl, 0.0, PI, open, 1.0)).abs() < 1e-5);
-        let mut hz = Horizon::new(sl);
+        let mut hz = Horizon::new(sl, Vec3A::X, Vec3A::Y);
         // γ = 116.6°, above the tangent plane (126.9°): tangent coordinate τ = 1.1, height
         // η = 0.2 (R = 1), parabola η = κτ².
-        hz.add(1.0, -0.5, true, 3.0);
+        add_xy(&mut hz, 1.0, -0.5, true, 1.0 / 3.0);
         let gk = 1.0f32.atan2(-0.5);
         let parabola = |g: f64| {
             let (tw, ew) = (0.8 * g.sin() - 0.6 * g.cos(), 0.6 * g.sin() + 0.8 * g.cos());
@@ -1040,9 +1154,9 @@ mod tests {
         assert!((got - expect).abs() < 1e-4, "{got} vs {expect}");
         // Behind the line of V, below the tangent plane or below the current horizon: ignored.
         let before = hz.value();
-        hz.add(-1.0, 1.0, true, 3.0);
-        hz.add(1.0, 2.0, false, 3.0);
-        hz.add(1.0, -0.6, true, 3.0);
+        add_xy(&mut hz, -1.0, 1.0, true, 1.0 / 3.0);
+        add_xy(&mut hz, 1.0, 2.0, false, 1.0 / 3.0);
+        add_xy(&mut hz, 1.0, -0.6, true, 1.0 / 3.0);
         assert_eq!(hz.value(), before);
     }
 
@@ -1124,7 +1238,11 @@ mod tests {
     fn speed_one_megapixel() {
         // Run alone: `cargo test --release --lib ssao::horizon::tests::speed -- --ignored`.
         // Reports wall time and CPU time (the machine may be shared).
-        let persp = camera(1024, 1024, 35f32.to_radians());
+        let n: usize = std::env::var("MVAO_SPEED_N")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(1024);
+        let persp = camera(n, n, 35f32.to_radians());
         let g_persp = cast(&persp, |o, d| {
             let f = plane(o, d, Vec3::Z, -3.0).map(|t| (t, Vec3::Z));
             let wl = plane(o, d, Vec3::NEG_Y, -4.0).map(|t| (t, Vec3::NEG_Y));
@@ -1133,12 +1251,16 @@ mod tests {
                 (a, b) => a.or(b),
             }
         });
-        let (g_waves, ortho) = heightfield(1024, 1024, 1.0, waves);
+        let (g_waves, ortho) = heightfield(n, n, 1.0, waves);
         let cases = [
             ("ortho waves, t_max 12 px", &g_waves, &ortho, 12.0f32),
             ("pinhole floor+wall, t_max 0.3", &g_persp, &persp, 0.3),
         ];
+        let only = std::env::var("MVAO_SPEED_CASE").ok();
         for (name, g, proj, tmax) in cases {
+            if only.as_deref().is_some_and(|o| !name.starts_with(o)) {
+                continue;
+            }
             let prm = params(8, 8, tmax);
             let _ = ssao(g, proj, &prm);
             let reps = 3;

@@ -111,6 +111,9 @@ mod tests {
         let w = visibility_weight(n, v, v.length());
         assert!((w - (1.0 - std::f32::consts::FRAC_1_SQRT_2)).abs() < 1e-6);
         // below the plane → w = 1
-        assert_eq!(visibility_weight(n, Vec3::new(1.0, 0.0, -1.0), 2f32.sqrt()), 1.0);
+        assert_eq!(
+            visibility_weight(n, Vec3::new(1.0, 0.0, -1.0), 2f32.sqrt()),
+            1.0
+        );
     }
 }

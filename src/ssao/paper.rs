@@ -22,7 +22,10 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     let mut ao = vec![1.0f32; n];
     let mut flag = vec![false; n];
     if g.width == 0 {
-        return AoMap { ao, no_sample: flag };
+        return AoMap {
+            ao,
+            no_sample: flag,
+        };
     }
     let tau = std::f32::consts::TAU;
     ao.par_chunks_mut(g.width)
@@ -36,7 +39,8 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                 }
                 let p = g.position[c];
                 let nrm = g.normal[c];
-                let (rx, ry) = proj.disk_radius(prm.radius, g.depth[c], x as f32 + 0.5, y as f32 + 0.5);
+                let (rx, ry) =
+                    proj.disk_radius(prm.radius, g.depth[c], x as f32 + 0.5, y as f32 + 0.5);
                 let mut rng = Rng::new(prm.seed, c as u64);
                 let (mut sum, mut cnt) = (0.0f32, 0u32);
                 // Stratified uniform disk samples: sample k has r² uniform in [k/S, (k+1)/S)
@@ -71,7 +75,10 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                 }
             }
         });
-    AoMap { ao, no_sample: flag }
+    AoMap {
+        ao,
+        no_sample: flag,
+    }
 }
 
 #[cfg(test)]
@@ -101,11 +108,25 @@ mod tests {
             warp_y: None,
         };
         let pts: Vec<Vec3> = (0..n * n)
-            .map(|i| Vec3::new(((i % n) as f32 + 0.5) * step, ((i / n) as f32 + 0.5) * step, 0.0))
+            .map(|i| {
+                Vec3::new(
+                    ((i % n) as f32 + 0.5) * step,
+                    ((i / n) as f32 + 0.5) * step,
+                    0.0,
+                )
+            })
             .collect();
         let px: Vec<u32> = (0..(n * n) as u32).collect();
         let d = vec![1.0; n * n];
-        let g = rasterize(n, n, &px, &d, &pts, &vec![Vec3::Z; n * n], &vec![0.001; n * n]);
+        let g = rasterize(
+            n,
+            n,
+            &px,
+            &d,
+            &pts,
+            &vec![Vec3::Z; n * n],
+            &vec![0.001; n * n],
+        );
         (g, proj)
     }
 
@@ -172,7 +193,15 @@ mod tests {
             warp_y: None,
         };
         let pts = vec![Vec3::new(0.05, 0.05, 0.0), Vec3::new(0.15, 0.05, 0.1)];
-        let g = rasterize(2, 1, &[0, 1], &[1.0, 0.9], &pts, &[Vec3::Z, Vec3::Z], &[0.1, 0.1]);
+        let g = rasterize(
+            2,
+            1,
+            &[0, 1],
+            &[1.0, 0.9],
+            &pts,
+            &[Vec3::Z, Vec3::Z],
+            &[0.1, 0.1],
+        );
         let m = ssao(&g, &proj, &params(0.2, 0.4, 64));
         let d = 0.1f32 * 2f32.sqrt();
         let x = d / 0.4;

@@ -18,7 +18,9 @@ impl Rng {
     /// The generator for stream `stream` (e.g. a pixel index) under `seed`.
     #[inline]
     pub fn new(seed: u64, stream: u64) -> Rng {
-        Rng(splitmix64(seed ^ splitmix64(stream.wrapping_add(0x5851_F42D_4C95_7F2D))))
+        Rng(splitmix64(
+            seed ^ splitmix64(stream.wrapping_add(0x5851_F42D_4C95_7F2D)),
+        ))
     }
 
     /// Next 64 random bits.
@@ -44,7 +46,10 @@ mod tests {
         let mut a = Rng::new(7, 3);
         let mut b = Rng::new(7, 3);
         let xs: Vec<f32> = (0..10_000).map(|_| a.next_f32()).collect();
-        assert!(xs.iter().zip((0..10_000).map(|_| b.next_f32())).all(|(x, y)| *x == y));
+        assert!(xs
+            .iter()
+            .zip((0..10_000).map(|_| b.next_f32()))
+            .all(|(x, y)| *x == y));
         assert!(xs.iter().all(|&x| (0.0..1.0).contains(&x)));
         let mean = xs.iter().sum::<f32>() / xs.len() as f32;
         assert!((mean - 0.5).abs() < 0.01);

@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 
 /// A fixture path relative to the crate root.
 pub fn fixture(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(rel)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(rel)
 }
 
 /// All `*.ply` files of a fixture folder, sorted.
@@ -57,7 +59,11 @@ pub fn median_nn_to_others(scans: &[Scan], i: usize) -> f64 {
     let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&others);
     let mut d: Vec<f64> = world(&scans[i])
         .iter()
-        .map(|p| tree.nearest_one::<SquaredEuclidean>(&p.to_array()).distance.sqrt())
+        .map(|p| {
+            tree.nearest_one::<SquaredEuclidean>(&p.to_array())
+                .distance
+                .sqrt()
+        })
         .collect();
     d.sort_by(f64::total_cmp);
     d[d.len() / 2]
