@@ -164,6 +164,21 @@ pub struct Projected {
     pub depth: f32,
 }
 
+/// `floor(v)` as an integer without a libm call (hot in the SSAO and merge loops);
+/// NaN maps to `i64::MIN`, which is outside every map.
+#[inline]
+pub fn floor_i64(v: f32) -> i64 {
+    if v.is_nan() {
+        return i64::MIN;
+    }
+    let t = v as i64;
+    if (t as f32) > v {
+        t - 1
+    } else {
+        t
+    }
+}
+
 /// Wraps an angle into (-π, π].
 #[inline]
 pub fn wrap_angle(a: f32) -> f32 {
@@ -276,7 +291,7 @@ impl Projection {
     /// full-circle map; `None` outside the map.
     #[inline]
     pub fn pixel_index(&self, x: f32, y: f32) -> Option<usize> {
-        self.pixel_at(x.floor() as i64, y.floor() as i64)
+        self.pixel_at(floor_i64(x), floor_i64(y))
     }
 
     /// The index of integer pixel `(ix, iy)`, wrapping x on a full-circle map.
@@ -287,7 +302,14 @@ impl Projection {
             return None;
         }
         let ix = if self.wrap_x {
-            ix.rem_euclid(w)
+            // One wrap covers every disk on the map; the division is the rare fallback.
+            if ix < 0 && ix >= -w {
+                ix + w
+            } else if ix >= w && ix < 2 * w {
+                ix - w
+            } else {
+                ix.rem_euclid(w)
+            }
         } else if ix < 0 || ix >= w {
             return None;
         } else {

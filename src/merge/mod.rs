@@ -8,7 +8,7 @@ pub mod border;
 pub mod weights;
 
 use crate::gbuffer::{GBuffer, EMPTY};
-use crate::projection::Projection;
+use crate::projection::{floor_i64, Projection};
 use glam::{Affine3A, DMat4, Vec3, Vec3A};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -114,7 +114,7 @@ pub fn merge_scan(
                         continue;
                     };
                     st.point_views += 1;
-                    let (cx, cy) = (pr.x.floor() as i64, pr.y.floor() as i64);
+                    let (cx, cy) = (floor_i64(pr.x), floor_i64(pr.y));
                     let rad_i = radii[pi];
                     for dy in -half..=half {
                         for dx in -half..=half {

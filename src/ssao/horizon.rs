@@ -260,7 +260,13 @@ impl<'a> Ctx<'a> {
         let d1 = self.screen_delta(pc.x, pc.y, proj.project(p + e1 * eps));
         let d2 = self.screen_delta(pc.x, pc.y, proj.project(p + e2 * eps));
         let a = nrm.dot(view);
-        let (pa, na) = (Vec3A::from(p), Vec3A::from(nrm));
+        let (pa, na, va) = (Vec3A::from(p), Vec3A::from(nrm), Vec3A::from(view));
+        let (e1, e2) = (Vec3A::from(e1), Vec3A::from(e2));
+        // The t_max ellipse x²/rx² + y²/ry² = 1 (no samples at all if degenerate).
+        let (irx2, iry2) = (1.0 / (rx * rx), 1.0 / (ry * ry));
+        let reach_ok = rx > 0.0 && ry > 0.0;
+        // Position inside p's own pixel.
+        let (fox, foy) = (ox - fast_floor(ox) as f32, oy - fast_floor(oy) as f32);
         let mut rng = Rng::new(self.seed, c as u64);
         let (mut sn, mut cs) = (TAU * rng.next_f32()).sin_cos();
         let (rot_s, rot_c) = (TAU / self.directions as f32).sin_cos();
@@ -270,37 +276,33 @@ impl<'a> Ctx<'a> {
             let (s, co) = (sn, cs);
             (sn, cs) = (s * rot_c + co * rot_s, co * rot_c - s * rot_s);
             let u = e1 * co + e2 * s;
-            let Some(slice) = Slice::new(a, nrm.dot(u)) else {
+            let Some(slice) = Slice::new(a, na.dot(u)) else {
                 continue;
             };
             let open = slice.open();
             sum_t += open;
             let dir = match (d1, d2) {
-                (Some(d1), Some(d2)) => unit(co * d1.0 + s * d2.0, co * d1.1 + s * d2.1),
+                (Some(d1), Some(d2)) if reach_ok => {
+                    unit(co * d1.0 + s * d2.0, co * d1.1 + s * d2.1)
+                }
                 _ => None,
             };
             let Some((dx, dy)) = dir else {
                 sum_s += open;
                 continue;
             };
-            // Length of the march: the t_max ellipse along (dx, dy), clipped to the map.
-            let er = 1.0 / ((dx / rx).powi(2) + (dy / ry).powi(2)).sqrt();
-            let reach = if rx > 0.0 && ry > 0.0 { er } else { 0.0 };
-            let exit_x = if self.wrap {
-                f32::INFINITY
-            } else {
-                exit(ox, dx, self.wf)
-            };
-            let reach = reach
-                .min(exit_x)
-                .min(exit(oy, dy, self.hf))
+            // Length of the march: the t_max ellipse along (dx, dy), clipped to the map, from
+            // where the line leaves p's own pixel.
+            let (idx, idy) = (1.0 / dx, 1.0 / dy);
+            let reach = (1.0 / (dx * dx * irx2 + dy * dy * iry2).sqrt())
+                .min(exit(oy, idy, self.hf))
                 .min(self.wf + self.hf);
-            // Where the line leaves p's own pixel.
-            let t0 = exit(ox - fast_floor(ox) as f32, dx, 1.0).min(exit(
-                oy - fast_floor(oy) as f32,
-                dy,
-                1.0,
-            ));
+            let reach = if self.wrap {
+                reach
+            } else {
+                reach.min(exit(ox, idx, self.wf))
+            };
+            let t0 = exit(fox, idx, 1.0).min(exit(foy, idy, 1.0));
             let span = reach - t0;
             if !(span > 0.0) {
                 sum_s += open;
@@ -309,13 +311,13 @@ impl<'a> Ctx<'a> {
             let count = (span as u32).clamp(1, self.steps);
             let step = span / count as f32;
             // In-plane coordinates as linear forms of v = s − p: along the tangent line
-            // t = (a u − b V)/R as measured; across it the height n·v above the tangent plane
-            // scaled to the plane (÷ R), so that a point of the tangent plane stays on it.
-            let (sa, sb, ir) = (slice.a, slice.b, slice.inv_r);
-            let along = (u * sa - view * sb) * ir;
-            let across = nrm * ir;
-            let fx = Vec3A::from((along * sa + across * sb) * ir);
-            let fy = Vec3A::from((across * sa - along * sb) * ir);
+            // (a u − b V)/R as measured; across it the height n·v above the tangent plane
+            // scaled to the plane (÷ R), so that a point of the tangent plane stays on it:
+            // x = v·(a² u − ab V + b n)/R², y = v·(a n − ab u + b² V)/R².
+            let (sa, sb) = (slice.a, slice.b);
+            let ir2 = slice.inv_r * slice.inv_r;
+            let fx = (u * (sa * sa) - va * (sa * sb) + na * sb) * ir2;
+            let fy = (na * sa - u * (sa * sb) + va * (sb * sb)) * ir2;
             let mut hz = Horizon::new(slice, fx, fy);
             // March in 48.16 fixed point: floor = arithmetic shift, no float → int per sample.
             let t1 = t0 + jitter * step;
@@ -427,13 +429,14 @@ fn fast_floor(x: f32) -> i32 {
     i - ((x < i as f32) as i32)
 }
 
-/// Distance along direction component `d` from coordinate `o` to the boundary of `[0, size]`.
+/// Distance from coordinate `o` to the boundary of `[0, size]` along a direction component
+/// of reciprocal `inv` (`±∞` for a zero component).
 #[inline]
-fn exit(o: f32, d: f32, size: f32) -> f32 {
-    if d > 0.0 {
-        (size - o) / d
-    } else if d < 0.0 {
-        o / -d
+fn exit(o: f32, inv: f32, size: f32) -> f32 {
+    if inv > 0.0 {
+        (size - o) * inv
+    } else if inv < 0.0 {
+        -o * inv
     } else {
         f32::INFINITY
     }
@@ -632,7 +635,7 @@ impl Horizon {
     }
 
     /// Raises the horizon to the sample at in-plane `(x, y)`, adding the blocked directions.
-    #[inline]
+    #[inline(never)]
     fn raise(&mut self, x: f32, y: f32, inv_tmax: f32) {
         let sl = &self.slice;
         let l = (x * x + y * y).sqrt();
@@ -1261,7 +1264,11 @@ mod tests {
             if only.as_deref().is_some_and(|o| !name.starts_with(o)) {
                 continue;
             }
-            let prm = params(8, 8, tmax);
+            let steps = std::env::var("MVAO_SPEED_STEPS")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(8);
+            let prm = params(8, steps, tmax);
             let _ = ssao(g, proj, &prm);
             let reps = 3;
             let (t, c) = (std::time::Instant::now(), cpu_seconds());
