@@ -132,6 +132,59 @@ mod tests {
     }
 
     #[test]
+    fn colour_modes() {
+        let dir = tempfile::tempdir().unwrap();
+        let xs = [0.0, 1.0];
+        let red = [200.0, 100.0];
+        let ply = PlyFile::from_vertex_columns(
+            &[
+                ("x", ScalarType::F32, &xs),
+                ("y", ScalarType::F32, &xs),
+                ("z", ScalarType::F32, &xs),
+                ("red", ScalarType::U8, &red),
+                ("green", ScalarType::U8, &red),
+                ("blue", ScalarType::U8, &red),
+            ],
+            &[],
+        )
+        .unwrap();
+        let ao = [0.5f32, 1.0];
+        let get = |mode: ColorMode| {
+            let p = dir.path().join(format!("{mode:?}.ply"));
+            write_result_ply(ply.clone(), &ao, 1.0, mode, "test", &p).unwrap();
+            let o = PlyFile::read_path(&p).unwrap();
+            assert_eq!(o.scalar_column("vertex", "ao").unwrap(), vec![0.5, 1.0]);
+            o.scalar_column("vertex", "red").unwrap()
+        };
+        // modulate: 200·128/255 = 100.4 → 100; 100·255/255 = 100
+        assert_eq!(get(ColorMode::Modulate), vec![100.0, 100.0]);
+        assert_eq!(get(ColorMode::Replace), vec![128.0, 255.0]);
+        assert_eq!(get(ColorMode::Keep), vec![200.0, 100.0]);
+        // Without input colours, grey is added.
+        let bare = PlyFile::from_vertex_columns(
+            &[
+                ("x", ScalarType::F32, &xs),
+                ("y", ScalarType::F32, &xs),
+                ("z", ScalarType::F32, &xs),
+            ],
+            &[],
+        )
+        .unwrap();
+        let p = dir.path().join("bare.ply");
+        write_result_ply(bare, &ao, 2.0, ColorMode::Keep, "test", &p).unwrap();
+        let o = PlyFile::read_path(&p).unwrap();
+        // gamma 2: 0.5^(1/2) = 0.7071 → 180
+        assert_eq!(
+            o.scalar_column("vertex", "green").unwrap(),
+            vec![180.0, 255.0]
+        );
+        // Non-finite AO is refused, and nothing is written.
+        let q = dir.path().join("nan.ply");
+        assert!(write_result_ply(ply, &[f32::NAN, 1.0], 1.0, ColorMode::Keep, "t", &q).is_err());
+        assert!(!q.exists());
+    }
+
+    #[test]
     fn preview_is_a_png() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("a.png");
