@@ -4,10 +4,10 @@
 
 use mvao::merge::{self, MergeParams, View};
 use mvao::pipeline::prepare_view;
+use mvao::projection::SensorModel;
 use mvao::sensor::ProjectionChoice;
 use mvao::ssao::{self, Estimator, SsaoParams};
 use mvao::synth::{scan_scene, station_layout, SceneKind};
-use mvao::projection::SensorModel;
 use std::time::Instant;
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
@@ -36,7 +36,10 @@ fn main() {
         })
         .collect();
     let n: usize = scans.iter().map(|s| s.len()).sum();
-    println!("room, 3 equirect stations {w}x{h}: {n} points ({} per scan)", scans[0].len());
+    println!(
+        "room, 3 equirect stations {w}x{h}: {n} points ({} per scan)",
+        scans[0].len()
+    );
     let base = SsaoParams {
         estimator: Estimator::Paper,
         radius: 0.2,
@@ -54,22 +57,60 @@ fn main() {
             .collect::<Vec<_>>()
     });
     println!("prepare (sensor+normals+gbuffer+ssao+border), 3 scans: {t_prep:.2} s");
-    let stage = |name: &str| -> f64 { views.iter().map(|v| v.times.iter().filter(|t| t.0 == name).map(|t| t.1).sum::<f64>()).sum() };
+    let stage = |name: &str| -> f64 {
+        views
+            .iter()
+            .map(|v| {
+                v.times
+                    .iter()
+                    .filter(|t| t.0 == name)
+                    .map(|t| t.1)
+                    .sum::<f64>()
+            })
+            .sum()
+    };
     for name in ["sensor", "normals", "gbuffer", "ssao", "border"] {
         let t = stage(name);
-        println!("  {name:8} {t:6.3} s  {:8.2} M points/s", n as f64 / t / 1e6);
+        println!(
+            "  {name:8} {t:6.3} s  {:8.2} M points/s",
+            n as f64 / t / 1e6
+        );
     }
     let g = &views[0].gbuf;
     let proj = &views[0].sensor.projection;
     let px = g.filled();
     for (label, prm) in [
         ("paper, 32 samples", base),
-        ("paper, 32 samples, no blur", SsaoParams { blur: false, ..base }),
-        ("horizon, 8x8", SsaoParams { estimator: Estimator::Horizon, ..base }),
-        ("horizon, 16x16", SsaoParams { estimator: Estimator::Horizon, directions: 16, steps: 16, ..base }),
+        (
+            "paper, 32 samples, no blur",
+            SsaoParams {
+                blur: false,
+                ..base
+            },
+        ),
+        (
+            "horizon, 8x8",
+            SsaoParams {
+                estimator: Estimator::Horizon,
+                ..base
+            },
+        ),
+        (
+            "horizon, 16x16",
+            SsaoParams {
+                estimator: Estimator::Horizon,
+                directions: 16,
+                steps: 16,
+                ..base
+            },
+        ),
     ] {
         let (t, _) = best_of(3, || ssao::compute(g, proj, &prm));
-        println!("ssao {label:28}: {:.3} s for {px} pixels = {:.2} M points/s", t, px as f64 / t / 1e6);
+        println!(
+            "ssao {label:28}: {:.3} s for {px} pixels = {:.2} M points/s",
+            t,
+            px as f64 / t / 1e6
+        );
     }
     let mv: Vec<View> = views
         .iter()
@@ -83,10 +124,24 @@ fn main() {
         })
         .collect();
     for nb in [1u32, 3, 5] {
-        let mp = MergeParams { neighbors: nb, dmin: 0.0, dmax: 10.0, border_px: 64.0 };
+        let mp = MergeParams {
+            neighbors: nb,
+            dmin: 0.0,
+            dmax: 10.0,
+            border_px: 64.0,
+        };
         let (own, _) = views[0].point_ssao();
         let (t, (_, st)) = best_of(3, || {
-            merge::merge_scan(0, &scans[0].points, &views[0].radii, &own, &mv, &[false; 3], &mp, &|_| {})
+            merge::merge_scan(
+                0,
+                &scans[0].points,
+                &views[0].radii,
+                &own,
+                &mv,
+                &[false; 3],
+                &mp,
+                &|_| {},
+            )
         });
         println!(
             "merge N={nb}, 3 views: {:.3} s, {} point-views = {:.2} M point-views/s",
