@@ -410,7 +410,12 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         dmax: prm.dmax.unwrap_or(dmax),
         border_px: prm.border_px,
     };
-    if prm.dmin.is_none() || prm.dmax.is_none() {
+    if !views
+        .iter()
+        .any(|v| v.sensor.projection.sensor_model() != crate::projection::SensorModel::Ortho)
+    {
+        note += "dmin/dmax unused: every view is orthographic (w_d = 1)";
+    } else if prm.dmin.is_none() || prm.dmax.is_none() {
         note += "dmin/dmax = smallest/largest depth over all scans with a sensor position";
     }
 
