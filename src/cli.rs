@@ -1,7 +1,7 @@
 //! Command-line flags (what the user typed) and their check into a [`Config`]. Opens no files.
 
 use crate::io::output::ColorMode;
-use crate::pipeline::Config;
+use crate::pipeline::{ComputeParams, Config};
 use crate::projection::SensorModel;
 use crate::sensor::ProjectionChoice;
 use crate::ssao::Estimator;
@@ -216,22 +216,24 @@ impl MergeArgs {
             scans: self.scans,
             align: self.align,
             out_dir: self.output,
-            radius: self.radius,
-            tmax: self.tmax,
-            samples: self.samples,
-            directions: self.directions,
-            steps: self.steps,
-            neighbors: self.neighbors,
-            dmin: self.dmin,
-            dmax: self.dmax,
-            border_px: self.border_px,
+            compute: ComputeParams {
+                radius: self.radius,
+                tmax: self.tmax,
+                samples: self.samples,
+                directions: self.directions,
+                steps: self.steps,
+                neighbors: self.neighbors,
+                dmin: self.dmin,
+                dmax: self.dmax,
+                border_px: self.border_px,
+                seed: self.seed,
+                projection: self.projection,
+                estimator: self.estimator,
+                blur: !self.no_blur,
+                ssao_only: self.ssao_only,
+            },
             gamma: self.gamma,
-            seed: self.seed,
-            projection: self.projection,
-            estimator: self.estimator,
-            ssao_only: self.ssao_only,
             color: self.color,
-            blur: !self.no_blur,
             quiet: self.quiet,
             preview: !self.no_preview,
             force: self.force,

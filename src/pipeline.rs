@@ -28,38 +28,12 @@ pub struct Config {
     pub align: Option<PathBuf>,
     /// Output directory.
     pub out_dir: PathBuf,
-    /// SSAO sphere radius `r_s` (metres); `None` = scene diagonal / 50.
-    pub radius: Option<f32>,
-    /// `t_max` (metres); `None` = 2·radius.
-    pub tmax: Option<f32>,
-    /// Samples per pixel (paper estimator).
-    pub samples: u32,
-    /// Directions per pixel (horizon estimator).
-    pub directions: u32,
-    /// Steps per direction (horizon estimator).
-    pub steps: u32,
-    /// N of the N×N merge neighbourhood.
-    pub neighbors: u32,
-    /// `d_min` (metres); `None` = smallest depth over all scans.
-    pub dmin: Option<f32>,
-    /// `d_max` (metres); `None` = largest depth over all scans.
-    pub dmax: Option<f32>,
-    /// `t_p` (pixels).
-    pub border_px: f32,
+    /// The computation's parameters.
+    pub compute: ComputeParams,
     /// Gamma of grey colours and previews.
     pub gamma: f32,
-    /// Random seed.
-    pub seed: u64,
-    /// Sensor model choice.
-    pub projection: ProjectionChoice,
-    /// Per-view estimator.
-    pub estimator: Estimator,
-    /// Write single-view SSAO instead of the merge.
-    pub ssao_only: bool,
     /// What happens to input colours.
     pub color: ColorMode,
-    /// Blur the SSAO maps (5×5 Gaussian).
-    pub blur: bool,
     /// No progress bars.
     pub quiet: bool,
     /// Write a PNG preview per scan.
@@ -665,24 +639,9 @@ pub fn run(cfg: &Config) -> Result<Report> {
         }
     }
 
-    let prm = ComputeParams {
-        radius: cfg.radius,
-        tmax: cfg.tmax,
-        samples: cfg.samples,
-        directions: cfg.directions,
-        steps: cfg.steps,
-        neighbors: cfg.neighbors,
-        dmin: cfg.dmin,
-        dmax: cfg.dmax,
-        border_px: cfg.border_px,
-        seed: cfg.seed,
-        projection: cfg.projection,
-        estimator: cfg.estimator,
-        blur: cfg.blur,
-        ssao_only: cfg.ssao_only,
-    };
+    let prm = &cfg.compute;
     let t0 = Instant::now();
-    let computed = compute(&scans, &prm, &obs)?;
+    let computed = compute(&scans, prm, &obs)?;
     for r in &computed.scans {
         for (name, secs) in &r.view.times {
             report.add_time(name, *secs);
@@ -727,7 +686,7 @@ pub fn run(cfg: &Config) -> Result<Report> {
         let comment = format!(
             "mvao {} {}: ao = {} (1 = open)",
             env!("CARGO_PKG_VERSION"),
-            if cfg.ssao_only { "ssao-only" } else { "merge" },
+            if prm.ssao_only { "ssao-only" } else { "merge" },
             match computed.ssao.estimator {
                 Estimator::Paper => "paper estimator",
                 Estimator::Horizon => "horizon estimator",
@@ -790,8 +749,8 @@ pub fn run(cfg: &Config) -> Result<Report> {
         defaults_note: computed.defaults_note.clone(),
         gamma: cfg.gamma,
         color: format!("{:?}", cfg.color).to_lowercase(),
-        projection: format!("{:?}", cfg.projection).to_lowercase(),
-        ssao_only: cfg.ssao_only,
+        projection: format!("{:?}", prm.projection).to_lowercase(),
+        ssao_only: prm.ssao_only,
     };
     report.totals = Totals {
         points: report.scans.iter().map(|s| s.points as u64).sum(),

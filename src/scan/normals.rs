@@ -42,7 +42,6 @@ where
         Vec::new()
     };
     let mut radii = vec![0.0f32; n];
-    const CHUNK: usize = 4096;
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
         let base = ci * CHUNK;
         for (o, r) in rad.iter_mut().enumerate() {
@@ -59,19 +58,31 @@ where
             }
         }
     };
-    if need_normals {
+    run_chunks(&mut radii, &mut normals, work);
+    (need_normals.then_some(normals), radii)
+}
+
+/// Points per parallel work item.
+const CHUNK: usize = 4096;
+
+/// Runs `work(chunk index, (radii chunk, normals chunk))` over `CHUNK`-sized chunks in
+/// parallel; `normals` is empty when normals are not wanted (its chunks are then empty).
+fn run_chunks<W>(radii: &mut [f32], normals: &mut [Vec3], work: W)
+where
+    W: Fn((usize, (&mut [f32], &mut [Vec3]))) + Sync + Send,
+{
+    if normals.is_empty() {
+        radii
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(ci, rad)| work((ci, (rad, &mut []))));
+    } else {
         radii
             .par_chunks_mut(CHUNK)
             .zip(normals.par_chunks_mut(CHUNK))
             .enumerate()
             .for_each(work);
-    } else {
-        radii
-            .par_chunks_mut(CHUNK)
-            .enumerate()
-            .for_each(|(ci, rad)| work((ci, (rad, &mut []))));
     }
-    (need_normals.then_some(normals), radii)
 }
 
 /// Grid half-window tried first, and the largest one, for neighbours from a native grid.
@@ -112,7 +123,6 @@ where
         Vec::new()
     };
     let mut radii = vec![0.0f32; n];
-    const CHUNK: usize = 4096;
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
         let mut cand = [(0.0f32, 0u32); ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize];
         for (o, r) in rad.iter_mut().enumerate() {
@@ -161,18 +171,7 @@ where
             }
         }
     };
-    if need_normals {
-        radii
-            .par_chunks_mut(CHUNK)
-            .zip(normals.par_chunks_mut(CHUNK))
-            .enumerate()
-            .for_each(work);
-    } else {
-        radii
-            .par_chunks_mut(CHUNK)
-            .enumerate()
-            .for_each(|(ci, rad)| work((ci, (rad, &mut []))));
-    }
+    run_chunks(&mut radii, &mut normals, work);
     (need_normals.then_some(normals), radii)
 }
 
