@@ -592,6 +592,20 @@ pub fn run(cfg: &Config) -> Result<Report> {
     let mut plys: Vec<PlyFile> = Vec::with_capacity(cfg.scans.len());
     for p in &cfg.scans {
         let (s, ply) = scan_ply::read_scan(p)?;
+        let off = s.pose.w_axis.truncate();
+        if off != DVec3::ZERO {
+            warn(
+                &mut report,
+                format!(
+                    "{}: coordinates beyond {} m; re-centred on ({:.3}, {:.3}, {:.3}) (kept in f64) and the scanner is assumed at that centre",
+                    p.display(),
+                    scan_ply::RECENTRE_ABOVE,
+                    off.x,
+                    off.y,
+                    off.z
+                ),
+            );
+        }
         if s.skipped_nonfinite > 0 {
             warn(
                 &mut report,
@@ -618,7 +632,8 @@ pub fn run(cfg: &Config) -> Result<Report> {
         let al = align::read_alignment(a)?;
         let poses = align::poses_for_scans(&al, &cfg.scans)?;
         for (s, m) in scans.iter_mut().zip(poses) {
-            s.pose = m;
+            // The file's own offset (re-centred georeferenced coordinates) stays inside.
+            s.pose = m * s.pose;
         }
         report.alignment = Some(a.display().to_string());
     } else if scans.len() > 1 {

@@ -6,7 +6,7 @@ use super::ply::PlyFile;
 use crate::error::{Error, Result};
 use crate::projection::SensorModel;
 use crate::scan::{Grid, Scan};
-use glam::{DMat4, Vec3};
+use glam::{DMat4, DVec3, Vec3};
 use std::path::Path;
 
 /// Names accepted for per-vertex grid indices, as (row, column) pairs.
@@ -63,9 +63,14 @@ pub fn scan_from_ply(ply: &PlyFile, path: &Path) -> Result<Scan> {
             Vec::with_capacity(vertex_count),
         )
     });
+    let offset = recentre_offset(&xyz);
     let mut skipped = 0usize;
     for (i, p) in xyz.iter().enumerate() {
-        let v = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);
+        let v = Vec3::new(
+            (p[0] - offset.x) as f32,
+            (p[1] - offset.y) as f32,
+            (p[2] - offset.z) as f32,
+        );
         if !v.is_finite() {
             skipped += 1;
             continue;
@@ -109,10 +114,31 @@ pub fn scan_from_ply(ply: &PlyFile, path: &Path) -> Result<Scan> {
         vertex_count,
         normals,
         grid,
-        pose: DMat4::IDENTITY,
+        pose: DMat4::from_translation(offset),
         skipped_nonfinite: skipped,
         sensor_hint: sensor_hint(ply),
     })
+}
+
+/// Coordinates beyond this (metres) lose millimetres in f32, so the scan is re-centred.
+pub const RECENTRE_ABOVE: f64 = 1e5;
+
+/// The offset subtracted from a scan's coordinates before they become f32: zero for ordinary
+/// scanner-local data; for georeferenced coordinates (beyond [`RECENTRE_ABOVE`]) the centre of
+/// the bounding box, kept in f64 in the pose. The scanner is then assumed at that centre.
+fn recentre_offset(xyz: &[[f64; 3]]) -> DVec3 {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for p in xyz {
+        let v = DVec3::from_array(*p);
+        if v.is_finite() {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    if !lo.is_finite() || lo.abs().max(hi.abs()).max_element() <= RECENTRE_ABOVE {
+        return DVec3::ZERO;
+    }
+    ((lo + hi) * 0.5).round()
 }
 
 /// A `comment sensor <equirect|perspective|ortho> …` line declares the sensor model.

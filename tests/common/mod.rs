@@ -34,7 +34,7 @@ pub fn load_aligned(paths: &[PathBuf], align_file: &Path) -> Vec<Scan> {
         .zip(poses)
         .map(|(p, m)| {
             let (mut s, _) = scan_ply::read_scan(p).unwrap();
-            s.pose = m;
+            s.pose = m * s.pose;
             s
         })
         .collect()
