@@ -321,6 +321,9 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
     if scans.is_empty() {
         return Err(Error::Param("no scan given".into()));
     }
+    if let Some(s) = scans.iter().find(|s| s.is_empty()) {
+        return Err(Error::scan(&s.name, "has no valid point"));
+    }
     let diag = robust_diagonal(scans);
     let mut note = String::new();
     let radius = match prm.radius {

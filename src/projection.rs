@@ -430,7 +430,7 @@ impl Projection {
 /// Angle subtended by the radius of a sphere of radius `r` at distance `depth` (radians),
 /// capped at 89° when the sensor is inside the sphere.
 #[inline]
-fn angular_radius(r: f32, depth: f32) -> f32 {
+pub fn angular_radius(r: f32, depth: f32) -> f32 {
     if depth <= r || depth <= 0.0 {
         return 89f32.to_radians();
     }

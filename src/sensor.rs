@@ -336,7 +336,7 @@ fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
     let want = |m: ProjectionChoice| choice == ProjectionChoice::Auto || choice == m;
     if want(ProjectionChoice::Equirect) {
         for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
-            fits.extend(fit_equirect(&pts, &rc, axis));
+            fits.extend(fit_equirect(&pts, &rc, axis, (grid.rows, grid.cols)));
         }
     }
     if want(ProjectionChoice::Perspective) {
@@ -364,7 +364,7 @@ fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
 
 /// Equirect fit with pole `axis`: x from azimuth, y from elevation, each a 1-D linear map of
 /// row or column (both assignments tried).
-fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
+fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3, dims: (u32, u32)) -> Vec<Fit> {
     let rot = frame_with_axis(axis);
     let ang: Vec<(f64, f64)> = pts
         .iter()
@@ -377,12 +377,18 @@ fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3) -> Vec<Fit> {
     for swap in [false, true] {
         // The grid's middle (in the azimuth index) maps to azimuth 0, so the ±π seam falls at
         // the grid's edges, where a full-circle scan has its own seam.
+        // Data straddling the grid's own seam (a facade behind the scanner occupies the first
+        // and last columns) is unwrapped into one run first.
+        let width = if swap { dims.0 } else { dims.1 } as f64;
         let xs: Vec<f64> = rc.iter().map(|&(r, c)| if swap { r } else { c }).collect();
+        let cut = circular_gap_end(&xs, width);
+        let unwrap = |x: f64| if x < cut { x + width } else { x };
+        let xs: Vec<f64> = xs.iter().map(|&x| unwrap(x)).collect();
         let az_ref = grid_middle_azimuth(&ang, &xs);
         let mut ax = Vec::with_capacity(ang.len());
         let mut ay = Vec::with_capacity(ang.len());
         for ((az, el), &(r, c)) in ang.iter().zip(rc) {
-            let (px, py) = if swap { (r, c) } else { (c, r) };
+            let (px, py) = if swap { (unwrap(r), c) } else { (unwrap(c), r) };
             // Azimuth is undefined at the poles: such points only inform the elevation fit.
             if el.cos() > 0.02 {
                 ax.push(([wrap_pi(az - az_ref), 1.0], px));
@@ -579,6 +585,32 @@ fn wrap_pi(a: f64) -> f64 {
         r += TAU;
     }
     r
+}
+
+/// The first occupied index after the largest circular gap of the occupied indices `xs`
+/// (pixel centres in `[0, width)`); 0 when the largest gap already spans the grid's edge.
+fn circular_gap_end(xs: &[f64], width: f64) -> f64 {
+    let n = width.max(1.0) as usize;
+    let mut occ = vec![false; n];
+    for &x in xs {
+        occ[(x.max(0.0) as usize).min(n - 1)] = true;
+    }
+    let (mut best_len, mut best_end, mut run) = (0usize, 0usize, 0usize);
+    for k in 0..2 * n {
+        if occ[k % n] {
+            if run > best_len {
+                best_len = run;
+                best_end = k % n;
+            }
+            run = 0;
+        } else {
+            run += 1;
+        }
+    }
+    if best_len == 0 || best_len >= n {
+        return 0.0;
+    }
+    best_end as f64
 }
 
 /// Circular mean azimuth of the points whose grid index `xs` is the median index.

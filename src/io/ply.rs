@@ -1000,8 +1000,10 @@ fn parse_header(src: &mut Source) -> Result<Header> {
                     )));
                 }
             }
-            "comment" => comments.push(rest.trim_start().to_string()),
-            "obj_info" => obj_info.push(rest.trim_start().to_string()),
+            // A carriage return inside the text becomes a space, as the writer does, so a
+            // written file reads back the same.
+            "comment" => comments.push(one_line(rest.trim_start())),
+            "obj_info" => obj_info.push(one_line(rest.trim_start())),
             "element" => {
                 let [name, count] = words.as_slice() else {
                     return Err(src.err(format!(

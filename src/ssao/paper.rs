@@ -9,7 +9,7 @@
 use super::rng::Rng;
 use super::{rho, visibility_weight, AoMap, SsaoParams};
 use crate::gbuffer::GBuffer;
-use crate::projection::Projection;
+use crate::projection::{angular_radius, Model, Projection};
 use rayon::prelude::*;
 
 /// cos and sin of the golden angle π(3 − √5).
@@ -28,6 +28,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
         };
     }
     let tau = std::f32::consts::TAU;
+    let is_equirect = matches!(proj.model, Model::Equirect { .. });
     ao.par_chunks_mut(g.width)
         .zip(flag.par_chunks_mut(g.width))
         .enumerate()
@@ -43,6 +44,19 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                     proj.disk_radius(prm.radius, g.depth[c], x as f32 + 0.5, y as f32 + 0.5);
                 let mut rng = Rng::new(prm.seed, c as u64);
                 let (mut sum, mut cnt) = (0.0f32, 0u32);
+                // Towards an equirect map's poles the pixel disk stretches in x and would lose
+                // its samples off the map at the pole; there the disk is taken on the sphere,
+                // around the pixel's view direction, and each sample projected.
+                let sphere = if is_equirect && rx > 2.0 * ry {
+                    proj.ray(x as f32 + 0.5, y as f32 + 0.5).map(|(_, d)| {
+                        let d = d.normalize_or_zero();
+                        let (e1, e2) = d.any_orthonormal_pair();
+                        let t = angular_radius(prm.radius, g.depth[c]).tan();
+                        (d, e1 * t, e2 * t)
+                    })
+                } else {
+                    None
+                };
                 // Stratified uniform disk samples: sample k has r² uniform in [k/S, (k+1)/S)
                 // and the angles step by the golden angle from a random start, so every
                 // sample is uniform in the disk and the set covers it evenly.
@@ -51,8 +65,13 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                 let inv = 1.0 / prm.samples.max(1) as f32;
                 for k in 0..prm.samples {
                     let r = ((k as f32 + u) * inv).sqrt();
-                    let sx = x as f32 + 0.5 + rx * r * co;
-                    let sy = y as f32 + 0.5 + ry * r * s;
+                    let (sx, sy) = match sphere {
+                        None => (x as f32 + 0.5 + rx * r * co, y as f32 + 0.5 + ry * r * s),
+                        Some((d, a, b)) => match proj.project(d + a * (r * co) + b * (r * s)) {
+                            Some(pr) => (pr.x, pr.y),
+                            None => (f32::NAN, f32::NAN),
+                        },
+                    };
                     (s, co) = (s * GOLD_COS + co * GOLD_SIN, co * GOLD_COS - s * GOLD_SIN);
                     let Some(i) = proj.pixel_index(sx, sy) else {
                         continue;
