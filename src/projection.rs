@@ -171,9 +171,10 @@ pub fn floor_i64(v: f32) -> i64 {
     if v.is_nan() {
         return i64::MIN;
     }
+    // `as` saturates at the i64 range, so ±∞ and huge values stay far outside any map.
     let t = v as i64;
     if (t as f32) > v {
-        t - 1
+        t.saturating_sub(1)
     } else {
         t
     }
