@@ -137,6 +137,7 @@ fn main() {
                 &scans[0].points,
                 &views[0].radii,
                 &own,
+                &views[0].pixel,
                 &mv,
                 &[false; 3],
                 &mp,

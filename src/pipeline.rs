@@ -187,13 +187,16 @@ pub trait Observer: Sync {
 pub struct Silent;
 impl Observer for Silent {}
 
-/// Robust scene diagonal: 1st–99th percentile box of a sample of world points.
+/// Robust scene diagonal: 1st–99th percentile box of a sample of points, taken in the first
+/// scan's frame so it moves with the dataset (a rigid motion of all poses leaves it unchanged).
 pub fn robust_diagonal(scans: &[Scan]) -> f64 {
     let mut xs = [Vec::new(), Vec::new(), Vec::new()];
+    let to_first = scans.first().map(|s| s.pose.inverse()).unwrap_or_default();
     for s in scans {
         let step = s.len().div_ceil(20_000).max(1);
+        let m = to_first * s.pose;
         for p in s.points.iter().step_by(step) {
-            let w = s.pose.transform_point3(p.as_dvec3());
+            let w = m.transform_point3(p.as_dvec3());
             for k in 0..3 {
                 xs[k].push(w[k]);
             }
@@ -397,6 +400,10 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
     }
 
     let bounds: Vec<(DVec3, DVec3)> = scans.iter().map(world_bounds).collect();
+    let max_rad: Vec<f64> = views
+        .iter()
+        .map(|v| v.radii.iter().copied().fold(0.0f32, f32::max) as f64)
+        .collect();
     let mv: Vec<View> = views
         .iter()
         .zip(scans)
@@ -416,14 +423,29 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         let (ao, st) = if prm.ssao_only {
             (own.clone(), MergeStats::default())
         } else {
-            let margin = (2.0 * tmax as f64).max(1e-9);
+            // Eq. 7 accepts partners within 2·max(rad); SSAO reaches t_max: a pair whose
+            // boxes, grown by the larger of both (and rounding), do not meet shares nothing.
             let skip: Vec<bool> = bounds
                 .iter()
-                .map(|b| !overlaps(&bounds[i], b, margin))
+                .zip(&max_rad)
+                .map(|(b, &rj)| {
+                    let scale = (bounds[i].1 - bounds[i].0).length() + (b.1 - b.0).length();
+                    let margin =
+                        (2.0 * tmax as f64).max(2.0 * max_rad[i].max(rj)) + 1e-6 * scale + 1e-9;
+                    !overlaps(&bounds[i], b, margin)
+                })
                 .collect();
-            merge::merge_scan(i, &s.points, &v.radii, &own, &mv, &skip, &mp, &|n| {
-                obs.advance(n)
-            })
+            merge::merge_scan(
+                i,
+                &s.points,
+                &v.radii,
+                &own,
+                &v.pixel,
+                &mv,
+                &skip,
+                &mp,
+                &|n| obs.advance(n),
+            )
         };
         results.push((own, ao, no_sample, st));
     }

@@ -292,6 +292,9 @@ impl Projection {
     /// full-circle map; `None` outside the map.
     #[inline]
     pub fn pixel_index(&self, x: f32, y: f32) -> Option<usize> {
+        if !(x.is_finite() && y.is_finite()) {
+            return None;
+        }
         self.pixel_at(floor_i64(x), floor_i64(y))
     }
 

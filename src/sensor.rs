@@ -708,7 +708,8 @@ fn step_from_occupancy(uv: &[(f64, f64, f64)], n: usize, lo: (f64, f64), hi: (f6
     for &(u, v, w) in uv {
         let i = (((u - lo.0) / span.0 * nb as f64) as usize).min(nb - 1);
         let j = (((v - lo.1) / span.1 * nb as f64) as usize).min(nb - 1);
-        occ[j * nb + i] = w;
+        // Max, not last write: the map must not depend on the order of the points.
+        occ[j * nb + i] = occ[j * nb + i].max(w);
     }
     let cell = span.0 / nb as f64 * span.1 / nb as f64;
     let area: f64 = occ.iter().sum::<f64>() * cell;

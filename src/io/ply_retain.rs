@@ -15,22 +15,44 @@ fn size(t: ScalarType) -> usize {
     }
 }
 
-fn read(t: ScalarType, b: &[u8]) -> f64 {
-    let a = |n: usize| -> [u8; 8] {
+/// The little-endian value of type `t` at the start of `b`; `None` if `b` is too short.
+fn read(t: ScalarType, b: &[u8]) -> Option<f64> {
+    let a = |n: usize| -> Option<[u8; 8]> {
         let mut x = [0u8; 8];
-        x[..n].copy_from_slice(&b[..n]);
-        x
+        x.get_mut(..n)?.copy_from_slice(b.get(..n)?);
+        Some(x)
     };
-    match t {
-        ScalarType::I8 => b[0] as i8 as f64,
-        ScalarType::U8 => b[0] as f64,
-        ScalarType::I16 => i16::from_le_bytes([b[0], b[1]]) as f64,
-        ScalarType::U16 => u16::from_le_bytes([b[0], b[1]]) as f64,
-        ScalarType::I32 => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-        ScalarType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-        ScalarType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-        ScalarType::F64 => f64::from_le_bytes(a(8)),
-    }
+    Some(match t {
+        ScalarType::I8 => f64::from(a(1)?[0] as i8),
+        ScalarType::U8 => f64::from(a(1)?[0]),
+        ScalarType::I16 => {
+            let x = a(2)?;
+            f64::from(i16::from_le_bytes([x[0], x[1]]))
+        }
+        ScalarType::U16 => {
+            let x = a(2)?;
+            f64::from(u16::from_le_bytes([x[0], x[1]]))
+        }
+        ScalarType::I32 => {
+            let x = a(4)?;
+            f64::from(i32::from_le_bytes([x[0], x[1], x[2], x[3]]))
+        }
+        ScalarType::U32 => {
+            let x = a(4)?;
+            f64::from(u32::from_le_bytes([x[0], x[1], x[2], x[3]]))
+        }
+        ScalarType::F32 => {
+            let x = a(4)?;
+            f64::from(f32::from_le_bytes([x[0], x[1], x[2], x[3]]))
+        }
+        ScalarType::F64 => f64::from_le_bytes(a(8)?),
+    })
+}
+
+/// A list item as a vertex index: only a whole, non-negative number refers to a vertex (so a
+/// negative, fractional or NaN item is a dangling reference, never vertex 0).
+fn as_index(v: f64) -> Option<usize> {
+    (v.fract() == 0.0 && v >= 0.0 && v <= usize::MAX as f64).then_some(v as usize)
 }
 
 fn write(t: ScalarType, v: f64, out: &mut Vec<u8>) {
@@ -46,56 +68,93 @@ fn write(t: ScalarType, v: f64, out: &mut Vec<u8>) {
     }
 }
 
-/// Byte ranges of each row of an element.
-fn rows(data: &ElementData, count: usize) -> Vec<(usize, usize)> {
-    match &data.row_offsets {
-        Some(o) => o.windows(2).map(|w| (w[0], w[1])).collect(),
+/// Byte ranges of each row of an element; `None` if the stored rows do not fit the bytes.
+fn rows(data: &ElementData, count: usize) -> Option<Vec<(usize, usize)>> {
+    let ranges: Vec<(usize, usize)> = match &data.row_offsets {
+        Some(o) => {
+            if o.len() != count.checked_add(1)? {
+                return None;
+            }
+            o.windows(2).map(|w| (w[0], w[1])).collect()
+        }
         None => {
-            let stride = data.bytes.len().checked_div(count).unwrap_or(0);
+            if count == 0 {
+                return data.bytes.is_empty().then(Vec::new);
+            }
+            let stride = data.bytes.len() / count;
+            if stride.checked_mul(count)? != data.bytes.len() {
+                return None;
+            }
+            if stride == 0 {
+                // A property-less element: no bytes, and rows need not be listed one by one.
+                return Some(Vec::new());
+            }
             (0..count).map(|i| (i * stride, (i + 1) * stride)).collect()
         }
-    }
+    };
+    ranges
+        .iter()
+        .all(|&(a, b)| a <= b && b <= data.bytes.len())
+        .then_some(ranges)
 }
 
 impl PlyFile {
     /// Keeps only the vertices with `keep[i]`, renumbering vertex references elsewhere.
+    ///
+    /// A list item that is not a whole number in `0..vertex count` (negative, fractional,
+    /// NaN, too large) refers to no vertex and is handled like a reference to a dropped vertex.
+    /// Stored rows that do not match the header give an error, never a panic.
     pub fn retain_vertices(mut self, keep: &[bool]) -> Result<PlyFile> {
         let bad = |m: &str| Error::Param(format!("cannot drop vertices: {m}"));
+        let mismatch = |name: &str| {
+            Error::Param(format!(
+                "cannot drop vertices: element '{name}': stored rows do not match the header \
+                 declaration"
+            ))
+        };
         let vi = self
             .element("vertex")
             .ok_or_else(|| bad("no vertex element"))?;
-        let n = self.header.elements[vi].count;
+        let n = self
+            .header
+            .elements
+            .get(vi)
+            .ok_or_else(|| bad("no vertex element"))?
+            .count;
         if keep.len() != n {
             return Err(bad("mask length differs from the vertex count"));
         }
-        let mut new_index = vec![u32::MAX; n];
-        let mut k = 0u32;
-        for (i, &kp) in keep.iter().enumerate() {
+        if self.data.len() != self.header.elements.len() {
+            return Err(bad("element bodies do not match the declared elements"));
+        }
+        // New index of every kept vertex.
+        let mut new_index: Vec<Option<usize>> = vec![None; n];
+        let mut k = 0usize;
+        for (slot, &kp) in new_index.iter_mut().zip(keep) {
             if kp {
-                new_index[i] = k;
+                *slot = Some(k);
                 k += 1;
             }
         }
         // Vertex rows.
-        let vrows = rows(&self.data[vi], n);
-        let mut bytes = Vec::with_capacity(self.data[vi].bytes.len());
-        let mut offs = self.data[vi].row_offsets.as_ref().map(|_| vec![0usize]);
-        for (i, &(a, b)) in vrows.iter().enumerate() {
-            if keep[i] {
-                bytes.extend_from_slice(&self.data[vi].bytes[a..b]);
-                if let Some(o) = offs.as_mut() {
-                    o.push(bytes.len());
-                }
+        let vdata = &self.data[vi];
+        let vrows = rows(vdata, n).ok_or_else(|| mismatch("vertex"))?;
+        let mut bytes = Vec::with_capacity(vdata.bytes.len());
+        let mut offs = vdata.row_offsets.as_ref().map(|_| vec![0usize]);
+        for (&(a, b), _) in vrows.iter().zip(keep).filter(|(_, &kp)| kp) {
+            bytes.extend_from_slice(vdata.bytes.get(a..b).ok_or_else(|| mismatch("vertex"))?);
+            if let Some(o) = offs.as_mut() {
+                o.push(bytes.len());
             }
         }
         self.data[vi] = ElementData {
             bytes,
             row_offsets: offs,
         };
-        self.header.elements[vi].count = k as usize;
+        self.header.elements[vi].count = k;
         // Index lists of the other elements.
         for ei in 0..self.header.elements.len() {
-            let def = self.header.elements[ei].clone();
+            let def = &self.header.elements[ei];
             if ei == vi
                 || !def.props.iter().any(|p| {
                     matches!(p.kind, PropertyKind::List { .. })
@@ -106,34 +165,44 @@ impl PlyFile {
             }
             let is_face = def.name == "face";
             let data = &self.data[ei];
+            let ranges = rows(data, def.count).ok_or_else(|| mismatch(&def.name))?;
             let mut out = Vec::with_capacity(data.bytes.len());
             let mut offs = vec![0usize];
             let mut items = Vec::new();
-            for (a, b) in rows(data, def.count) {
-                let row = &data.bytes[a..b];
+            for (a, b) in ranges {
+                let row = data.bytes.get(a..b).ok_or_else(|| mismatch(&def.name))?;
+                // The bytes of the row from `off` on.
+                let at = |off: usize| row.get(off..).ok_or_else(|| mismatch(&def.name));
                 let start = out.len();
                 let mut off = 0usize;
                 let mut drop_row = false;
                 for p in &def.props {
                     match p.kind {
                         PropertyKind::Scalar(t) => {
-                            out.extend_from_slice(&row[off..off + size(t)]);
+                            let field =
+                                at(off)?.get(..size(t)).ok_or_else(|| mismatch(&def.name))?;
+                            out.extend_from_slice(field);
                             off += size(t);
                         }
                         PropertyKind::List { count, item } => {
-                            let c = read(count, &row[off..]) as usize;
+                            let c = read(count, at(off)?).ok_or_else(|| mismatch(&def.name))?;
                             off += size(count);
+                            let c = as_index(c).ok_or_else(|| mismatch(&def.name))?;
+                            // Every item must be inside the row: checked before reserving.
+                            if c.checked_mul(size(item)).is_none_or(|len| len > row.len()) {
+                                return Err(mismatch(&def.name));
+                            }
                             items.clear();
                             for _ in 0..c {
-                                items.push(read(item, &row[off..]));
+                                items
+                                    .push(read(item, at(off)?).ok_or_else(|| mismatch(&def.name))?);
                                 off += size(item);
                             }
                             if p.name == "vertex_indices" || p.name == "vertex_index" {
                                 let before = items.len();
                                 items.retain_mut(|v| {
-                                    let old = *v as usize;
-                                    match new_index.get(old) {
-                                        Some(&m) if m != u32::MAX => {
+                                    match as_index(*v).and_then(|old| new_index.get(old)) {
+                                        Some(&Some(m)) => {
                                             *v = m as f64;
                                             true
                                         }
@@ -148,6 +217,9 @@ impl PlyFile {
                             }
                         }
                     }
+                }
+                if off != row.len() {
+                    return Err(mismatch(&def.name));
                 }
                 if drop_row {
                     out.truncate(start);

@@ -63,15 +63,18 @@ impl std::ops::AddAssign for MergeStats {
 }
 
 /// MVAO of scan i's points. `own` is each point's SSAO in its own scan (the fallback when all
-/// weights are zero); `views[i]` must be scan i itself. Views listed in `skip` are not visited
-/// (pairs known not to overlap). `progress` is called with the number of points of each
-/// finished chunk.
+/// weights are zero) and `own_pixel` its pixel there ([`EMPTY`] if none): in its own view a
+/// point is looked up at its own pixel, never re-projected (a fitted projection may be off
+/// its native grid by a pixel). `views[i]` must be scan i itself. Views listed in `skip` are
+/// not visited (pairs known not to overlap). `progress` is called with the number of points
+/// of each finished chunk.
 #[allow(clippy::too_many_arguments)]
 pub fn merge_scan(
     i: usize,
     points: &[Vec3],
     radii: &[f32],
     own: &[f32],
+    own_pixel: &[u32],
     views: &[View<'_>],
     skip: &[bool],
     prm: &MergeParams,
@@ -109,12 +112,25 @@ pub fn merge_scan(
                 let use_wd = v.proj.sensor_model() != crate::projection::SensorModel::Ortho;
                 for k in 0..n {
                     let pi = base + k;
-                    let q: Vec3 = rel.transform_point3a(Vec3A::from(points[pi])).into();
-                    let Some(pr) = v.proj.project(q) else {
-                        continue;
+                    let (q, cx, cy) = if j == i {
+                        let px = own_pixel[pi];
+                        if px == EMPTY {
+                            continue;
+                        }
+                        let w = g.width.max(1);
+                        (
+                            points[pi],
+                            (px as usize % w) as i64,
+                            (px as usize / w) as i64,
+                        )
+                    } else {
+                        let q: Vec3 = rel.transform_point3a(Vec3A::from(points[pi])).into();
+                        let Some(pr) = v.proj.project(q) else {
+                            continue;
+                        };
+                        (q, floor_i64(pr.x), floor_i64(pr.y))
                     };
                     st.point_views += 1;
-                    let (cx, cy) = (floor_i64(pr.x), floor_i64(pr.y));
                     let rad_i = radii[pi];
                     for dy in -half..=half {
                         for dx in -half..=half {
@@ -238,7 +254,17 @@ mod tests {
             border_px: 64.0,
         };
         let own = vec![0.2f32; 9];
-        let (ao, st) = merge_scan(0, &pts, &rad, &own, &views, &[false, false], &prm, &|_| {});
+        let (ao, st) = merge_scan(
+            0,
+            &pts,
+            &rad,
+            &own,
+            &px,
+            &views,
+            &[false, false],
+            &prm,
+            &|_| {},
+        );
         // w_d = 1 − 2/4 = 0.5 for both, w_n = 1, w_b = 1 and 0.25:
         // MVAO = (0.2·0.5 + 0.8·0.125) / (0.5 + 0.125) = 0.32
         for a in &ao {
@@ -272,7 +298,7 @@ mod tests {
             border_px: 64.0,
         };
         let own = vec![0.7f32; 9];
-        let (out, st) = merge_scan(0, &pts, &[0.05; 9], &own, &v, &[false], &prm, &|_| {});
+        let (out, st) = merge_scan(0, &pts, &[0.05; 9], &own, &px, &v, &[false], &prm, &|_| {});
         assert!(out.iter().all(|&a| a == 0.7));
         assert_eq!(st.zero_weight, 9);
     }
@@ -299,7 +325,17 @@ mod tests {
         };
         // Centre point: with t = 0.06, neighbours at 0.1 m (edge) pass 2t = 0.12, diagonal
         // ones at 0.1414 do not → average of pixels 1,3,4,5,7 = (0.1+0.3+0.4+0.5+0.7)/5 = 0.4.
-        let (out, _) = merge_scan(0, &pts[4..5], &[0.06], &[0.0], &v, &[false], &prm, &|_| {});
+        let (out, _) = merge_scan(
+            0,
+            &pts[4..5],
+            &[0.06],
+            &[0.0],
+            &[4],
+            &v,
+            &[false],
+            &prm,
+            &|_| {},
+        );
         assert!((out[0] - 0.4).abs() < 1e-6, "{}", out[0]);
     }
 }

@@ -45,7 +45,8 @@ pub fn corresponds(q: Vec3, p_ij: Vec3, n_ij: Vec3, rad_i: f32, rad_ij: f32, b: 
     } else {
         b.truncate()
     };
-    to_b.dot(n_ij) > 0.0
+    // A relative margin: a surface seen exactly edge-on must not flip with rounding.
+    to_b.dot(n_ij) > 1e-5 * to_b.length()
 }
 
 #[cfg(test)]
