@@ -146,21 +146,43 @@ pub fn poses_for_scans(al: &Alignment, scans: &[PathBuf]) -> Result<Vec<DMat4>> 
                 .unwrap_or_default()
         })
         .collect();
-    let count = |names: &[String], n: &str| names.iter().filter(|m| m.as_str() == n).count();
+    // How often each base name occurs, and its first entry: one pass each, so that matching
+    // stays linear in the number of scans and entries.
+    fn tally(names: &[String]) -> HashMap<&str, usize> {
+        let mut m: HashMap<&str, usize> = HashMap::new();
+        for n in names {
+            *m.entry(n.as_str()).or_default() += 1;
+        }
+        m
+    }
+    let (entry_count, scan_count) = (tally(&entry_base), tally(&scan_base));
+    let mut first_entry: HashMap<&str, usize> = HashMap::new();
+    for (i, b) in entry_base.iter().enumerate() {
+        first_entry.entry(b.as_str()).or_insert(i);
+    }
     let dir = al.path.parent().unwrap_or(Path::new(""));
+    // Path keys of the entries, computed once and only if some name is ambiguous.
+    let mut entry_keys: Option<Vec<PathBuf>> = None;
 
     let mut owner: Vec<Option<usize>> = vec![None; al.entries.len()];
     let mut poses = Vec::with_capacity(scans.len());
     for (si, scan) in scans.iter().enumerate() {
-        let base = &scan_base[si];
-        let ambiguous = count(&entry_base, base) > 1 || count(&scan_base, base) > 1;
+        let base = scan_base[si].as_str();
+        let ambiguous = entry_count.get(base).is_some_and(|&c| c > 1)
+            || scan_count.get(base).is_some_and(|&c| c > 1);
         let hit = if ambiguous {
             let key = path_key(scan);
-            al.entries
+            entry_keys
+                .get_or_insert_with(|| {
+                    al.entries
+                        .iter()
+                        .map(|e| path_key(&dir.join(native_name(&e.file))))
+                        .collect()
+                })
                 .iter()
-                .position(|e| path_key(&dir.join(native_name(&e.file))) == key)
+                .position(|k| *k == key)
         } else {
-            entry_base.iter().position(|b| b == base)
+            first_entry.get(base).copied()
         };
         let Some(ei) = hit else {
             return Err(err(format!(
@@ -398,8 +420,10 @@ fn parse_mlp(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
 
     let mut reader = quick_xml::Reader::from_str(text);
     let mut out = Vec::new();
-    // (file name, line of the MLMesh, matrix text if one was seen)
-    let mut mesh: Option<(String, usize, Option<String>)> = None;
+    // (file name, byte position of the MLMesh, matrix text if one was seen). The line number is
+    // only counted for an error message: counting it for every mesh is quadratic in the size
+    // of the file.
+    let mut mesh: Option<(String, u64, Option<String>)> = None;
     let mut matrix: Option<String> = None;
     loop {
         let pos = reader.buffer_position();
@@ -411,7 +435,7 @@ fn parse_mlp(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
         })?;
         match ev {
             Event::Start(e) if e.local_name().as_ref() == b"MLMesh" => {
-                mesh = Some((name_of(&e, pos)?, line_of(pos), None));
+                mesh = Some((name_of(&e, pos)?, pos, None));
             }
             Event::Empty(e) if e.local_name().as_ref() == b"MLMesh" => {
                 let name = name_of(&e, pos)?;
@@ -438,17 +462,23 @@ fn parse_mlp(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
                 }
             }
             Event::End(e) if e.local_name().as_ref() == b"MLMesh" => {
-                if let Some((file, line, m)) = mesh.take() {
+                if let Some((file, mesh_pos, m)) = mesh.take() {
                     let Some(m) = m else {
                         return Err(Error::align(
                             path,
-                            format!("line {line}: mesh '{file}' has no MLMatrix44"),
+                            format!(
+                                "line {}: mesh '{file}' has no MLMatrix44",
+                                line_of(mesh_pos)
+                            ),
                         ));
                     };
                     let nums: Vec<&str> = m.split_whitespace().collect();
                     let pose =
                         matrix_from_row_major(&nums, |t| parse_number(t)).map_err(|msg| {
-                            Error::align(path, format!("line {line}: matrix of '{file}': {msg}"))
+                            Error::align(
+                                path,
+                                format!("line {}: matrix of '{file}': {msg}", line_of(mesh_pos)),
+                            )
                         })?;
                     let pose = check_rigid(pose, path, &file)?;
                     out.push(AlignEntry { file, pose });
