@@ -8,6 +8,32 @@
 //! [`io`] reads scans and alignments → [`scan`] adds normals and radii → [`projection`] maps
 //! points to pixels → [`gbuffer`] rasterizes → [`ssao`] shades each view → [`merge`] combines the
 //! views → [`pipeline`] orders all of it and [`report`] records what happened.
+//!
+//! The same computation the command line runs, on a scan from the virtual scanner:
+//!
+//! ```
+//! use glam::DVec3;
+//! use mvao::pipeline::{compute, ComputeParams, Silent};
+//! use mvao::ssao::Estimator;
+//! use mvao::synth::{scan_scene, Scene, Station};
+//!
+//! let station = Station::equirect(DVec3::new(0.0, 0.0, 1.5), 0.0, 360, 180);
+//! let mut scan = scan_scene(&Scene::room(), &station, 0.0, 1, "station");
+//! scan.pose = station.pose();
+//! let params = ComputeParams {
+//!     radius: Some(0.2),
+//!     tmax: Some(0.4),
+//!     estimator: Estimator::Horizon,
+//!     ..Default::default()
+//! };
+//! let out = compute(&[scan], &params, &Silent)?;
+//! let ao = &out.scans[0].ao;
+//! assert!(ao.iter().all(|a| (0.0..=1.0).contains(a)));
+//! // Most of a room is open floor, wall and ceiling; corners are darker.
+//! let open = ao.iter().filter(|&&a| a > 0.95).count();
+//! assert!(open > ao.len() / 2);
+//! # Ok::<(), mvao::Error>(())
+//! ```
 #![deny(missing_docs)]
 // Guards are written `!(x > 0.0)` on purpose: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
