@@ -44,13 +44,13 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                     proj.disk_radius(prm.radius, g.depth[c], x as f32 + 0.5, y as f32 + 0.5);
                 let mut rng = Rng::new(prm.seed, c as u64);
                 let (mut sum, mut cnt) = (0.0f32, 0u32);
-                // Near an equirect map's poles (the disk crosses the pole, or is stretched more
-                // than 4× in x, above ~75° elevation) the pixel ellipse would lose samples off
-                // the map or bend away from the true disk; there the disk is taken on the
-                // sphere, around the pixel's view direction, and each sample projected.
+                // Where the disk crosses an equirect map's pole the pixel ellipse would lose its
+                // samples off the map; there the disk is taken on the sphere, around the
+                // pixel's view direction, and each sample projected (elsewhere the ellipse,
+                // widened by 1/cos(elevation), is the disk on the sphere).
                 let yc = y as f32 + 0.5;
                 let crosses_pole = yc < ry || yc + ry > g.height as f32;
-                let sphere = if is_equirect && rx > ry && (crosses_pole || rx > 4.0 * ry) {
+                let sphere = if is_equirect && crosses_pole {
                     proj.ray(x as f32 + 0.5, y as f32 + 0.5).map(|(_, d)| {
                         let d = d.normalize_or_zero();
                         let (e1, e2) = d.any_orthonormal_pair();
