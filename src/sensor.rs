@@ -498,22 +498,15 @@ fn fit_ortho(pts: &[DVec3], rc: &[(f64, f64)]) -> Option<Fit> {
     // Centred coordinates keep the constant term apart from the coordinates, so a coplanar
     // scan (no information along its normal) gets no gradient along the normal.
     let mu = pts.iter().sum::<DVec3>() / pts.len().max(1) as f64;
-    let ax: Vec<([f64; 4], f64)> = pts
+    let feats: Vec<[f64; 4]> = pts
         .iter()
-        .zip(rc)
-        .map(|(p, &(_, c))| {
+        .map(|p| {
             let q = *p - mu;
-            ([q.x, q.y, q.z, 1.0], c)
+            [q.x, q.y, q.z, 1.0]
         })
         .collect();
-    let ay: Vec<([f64; 4], f64)> = pts
-        .iter()
-        .zip(rc)
-        .map(|(p, &(r, _))| {
-            let q = *p - mu;
-            ([q.x, q.y, q.z, 1.0], r)
-        })
-        .collect();
+    let ax: Vec<([f64; 4], f64)> = feats.iter().zip(rc).map(|(f, rc)| (*f, rc.1)).collect();
+    let ay: Vec<([f64; 4], f64)> = feats.iter().zip(rc).map(|(f, rc)| (*f, rc.0)).collect();
     let fx = lstsq(&ax)?;
     let fy = lstsq(&ay)?;
     let a = DVec3::new(fx[0], fx[1], fx[2]);
