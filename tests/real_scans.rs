@@ -111,6 +111,24 @@ fn bunny_merge_outputs_every_scan() {
 }
 
 #[test]
+fn bunny_scans_are_orthographic_looking_along_minus_z() {
+    for p in plys("stanford-bunny") {
+        let (scan, _) = mvao::io::scan_ply::read_scan(&p).unwrap();
+        let setup = mvao::sensor::setup(&scan, mvao::sensor::ProjectionChoice::Auto).unwrap();
+        match setup.projection.model {
+            mvao::projection::Model::Ortho { toward, .. } => {
+                assert!(
+                    toward.z > 0.99,
+                    "{}: sensor direction {toward}",
+                    p.display()
+                )
+            }
+            m => panic!("{}: {m:?}", p.display()),
+        }
+    }
+}
+
+#[test]
 fn bunny_concave_regions_are_darker() {
     for (name, concave, convex) in
         concave_vs_convex("stanford-bunny", "stanford-bunny/bun.conf", 48)
