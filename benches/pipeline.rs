@@ -2,8 +2,8 @@
 //! ≈1M points each): `cargo bench`. Prints points/s for each per-view stage and
 //! point-views/s for the merge.
 
-use mvao::merge::{self, MergeParams, View};
-use mvao::pipeline::prepare_view;
+use mvao::merge::{self, MergeParams};
+use mvao::pipeline::{merge_views, prepare_view};
 use mvao::projection::SensorModel;
 use mvao::sensor::ProjectionChoice;
 use mvao::ssao::{self, Estimator, SsaoParams};
@@ -112,17 +112,7 @@ fn main() {
             px as f64 / t / 1e6
         );
     }
-    let mv: Vec<View> = views
-        .iter()
-        .zip(&scans)
-        .map(|(v, s)| View {
-            proj: &v.sensor.projection,
-            gbuf: &v.gbuf,
-            ao: &v.ssao.ao,
-            border: &v.border,
-            pose: s.pose,
-        })
-        .collect();
+    let mv = merge_views(&views, &scans);
     for nb in [1u32, 3, 5] {
         let mp = MergeParams {
             neighbors: nb,

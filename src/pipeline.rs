@@ -404,17 +404,7 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         .iter()
         .map(|v| v.radii.iter().copied().fold(0.0f32, f32::max) as f64)
         .collect();
-    let mv: Vec<View> = views
-        .iter()
-        .zip(scans)
-        .map(|(v, s)| View {
-            proj: &v.sensor.projection,
-            gbuf: &v.gbuf,
-            ao: &v.ssao.ao,
-            border: &v.border,
-            pose: s.pose,
-        })
-        .collect();
+    let mv = merge_views(&views, scans);
     obs.stage("merge", if prm.ssao_only { 0 } else { total });
     let t0 = Instant::now();
     let mut results = Vec::with_capacity(scans.len());
@@ -469,6 +459,21 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         defaults_note: note,
         merge_s,
     })
+}
+
+/// What the merge reads of each prepared view (with its scan's pose).
+pub fn merge_views<'a>(views: &'a [PreparedView], scans: &[Scan]) -> Vec<View<'a>> {
+    views
+        .iter()
+        .zip(scans)
+        .map(|(v, s)| View {
+            proj: &v.sensor.projection,
+            gbuf: &v.gbuf,
+            ao: &v.ssao.ao,
+            border: &v.border,
+            pose: s.pose,
+        })
+        .collect()
 }
 
 /// World-space bounding box of a scan.
