@@ -41,21 +41,6 @@ fn small_scan(dir: &Path, name: &str, xyz: &[[f64; 3]]) -> PathBuf {
     p
 }
 
-/// A hemisphere of points around a scanner at the origin.
-fn dome(n: usize) -> Vec<[f64; 3]> {
-    (0..n)
-        .map(|i| {
-            let a = i as f64 * 0.61803398875 * std::f64::consts::TAU;
-            let e = (i as f64 / n as f64) * 1.2;
-            [
-                3.0 * e.cos() * a.cos(),
-                3.0 * e.cos() * a.sin(),
-                3.0 * e.sin() - 1.0,
-            ]
-        })
-        .collect()
-}
-
 #[test]
 fn missing_file_is_named() {
     let out = tempfile::tempdir().unwrap();

@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::mvao;
+use common::{dome, mvao};
 use glam::{DMat3, DMat4, DVec2, DVec3, Vec3};
 use mvao::io::align::check_rigid;
 use mvao::io::ply::{PlyFile, ScalarType};
@@ -278,21 +278,6 @@ fn write_ply(path: &Path, pts: &[[f64; 3]], normals: Option<&[[f64; 3]]>) {
         .unwrap()
         .write_path(path)
         .unwrap();
-}
-
-/// A hemisphere of points around a scanner at the origin (radius 3 m, below and around it).
-fn dome(n: usize) -> Vec<[f64; 3]> {
-    (0..n)
-        .map(|i| {
-            let a = i as f64 * 0.618_033_988_75 * std::f64::consts::TAU;
-            let e = (i as f64 / n as f64) * 1.2;
-            [
-                3.0 * e.cos() * a.cos(),
-                3.0 * e.cos() * a.sin(),
-                3.0 * e.sin() - 1.0,
-            ]
-        })
-        .collect()
 }
 
 /// A 16-number row-major JSON matrix.

@@ -36,12 +36,7 @@ where
     let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&coords);
     let k = K_RADIUS.max(K_NORMAL).min(n);
     let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
-    let mut normals = if need_normals {
-        vec![Vec3::ZERO; n]
-    } else {
-        Vec::new()
-    };
-    let mut radii = vec![0.0f32; n];
+    let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
         let base = ci * CHUNK;
         for (o, r) in rad.iter_mut().enumerate() {
@@ -60,6 +55,16 @@ where
     };
     run_chunks(&mut radii, &mut normals, work);
     (need_normals.then_some(normals), radii)
+}
+
+/// Zeroed radii and (when wanted, else empty) normals for `n` points.
+fn outputs(n: usize, need_normals: bool) -> (Vec<f32>, Vec<Vec3>) {
+    let normals = if need_normals {
+        vec![Vec3::ZERO; n]
+    } else {
+        Vec::new()
+    };
+    (vec![0.0f32; n], normals)
 }
 
 /// Points per parallel work item.
@@ -117,12 +122,7 @@ where
         }
     }
     let k = K_RADIUS.min(n);
-    let mut normals = if need_normals {
-        vec![Vec3::ZERO; n]
-    } else {
-        Vec::new()
-    };
-    let mut radii = vec![0.0f32; n];
+    let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
         let mut cand = [(0.0f32, 0u32); ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize];
         for (o, r) in rad.iter_mut().enumerate() {

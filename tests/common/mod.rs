@@ -104,3 +104,18 @@ pub fn mvao(args: &[&str]) -> std::process::Output {
         .output()
         .unwrap()
 }
+
+/// A hemisphere of points around a scanner at the origin (radius 3 m, below and around it).
+pub fn dome(n: usize) -> Vec<[f64; 3]> {
+    (0..n)
+        .map(|i| {
+            let a = i as f64 * 0.618_033_988_75 * std::f64::consts::TAU;
+            let e = (i as f64 / n as f64) * 1.2;
+            [
+                3.0 * e.cos() * a.cos(),
+                3.0 * e.cos() * a.sin(),
+                3.0 * e.sin() - 1.0,
+            ]
+        })
+        .collect()
+}
