@@ -5,5 +5,6 @@ pub mod align;
 pub mod atomic;
 pub mod output;
 pub mod ply;
+pub mod raw;
 mod ply_retain;
 pub mod scan_ply;
