@@ -1,6 +1,8 @@
 //! Command-line flags (what the user typed) and their check into a [`Config`]. Opens no files.
 
+use crate::io::dataset::{PlaceOptions, PoseOverride};
 use crate::io::output::ColorMode;
+use crate::io::source::Format;
 use crate::pipeline::{ComputeParams, Config};
 use crate::projection::SensorModel;
 use crate::sensor::ProjectionChoice;
@@ -23,6 +25,9 @@ pub struct Cli {
 pub enum Command {
     /// Compute per-point multi-view AO for aligned scans and write coloured copies.
     Merge(MergeArgs),
+    /// Describe scan files: format, points, attributes, pose, grid, sensor model, bounds,
+    /// overlaps.
+    Info(InfoArgs),
     /// Write synthetic scans of an analytic scene (a virtual scanner) with an .mlp alignment.
     Synth(SynthArgs),
 }
@@ -30,16 +35,18 @@ pub enum Command {
 /// Flags of `mvao merge`.
 #[derive(Debug, Args)]
 pub struct MergeArgs {
-    /// Input scans (PLY: ascii or binary; gridded or not).
+    /// Input scans: PLY, LAS/LAZ, E57 (any number of scans per file), PTX.
     #[arg(required = true)]
     pub scans: Vec<PathBuf>,
-    /// Alignment: Stanford .conf, MeshLab .mlp or JSON {"file": [16 numbers row-major]}.
-    /// Default: the one such file beside the scans, if exactly one exists.
-    #[arg(long)]
-    pub align: Option<PathBuf>,
+    /// How the scans are placed.
+    #[command(flatten)]
+    pub place: PlaceArgs,
     /// Output directory.
     #[arg(short, long, default_value = "mvao-out")]
     pub output: PathBuf,
+    /// Output format [default: the input's; PTX → ply].
+    #[arg(long, value_enum)]
+    pub format: Option<Format>,
     /// SSAO sampling-sphere radius r_s in metres [default: robust scene diagonal / 50].
     #[arg(long)]
     pub radius: Option<f32>,
@@ -97,6 +104,52 @@ pub struct MergeArgs {
     /// No progress bars or summary.
     #[arg(short, long)]
     pub quiet: bool,
+}
+
+/// How scans are placed in world coordinates (shared by `merge`, `info`, `reference`).
+#[derive(Debug, Args, Clone)]
+pub struct PlaceArgs {
+    /// Alignment: Stanford .conf, MeshLab .mlp or .aln, or JSON {"file": [16 numbers
+    /// row-major]}. Default: the one such file beside the scans, if exactly one exists.
+    /// A scan with a sidecar matrix (scan.txt or scan.mat, 16 numbers row-major beside it)
+    /// takes that instead.
+    #[arg(long)]
+    pub align: Option<PathBuf>,
+    /// Place one scan by a 4×4 matrix file (scan → world), overriding every other pose of it.
+    /// SCAN is a scan name, file name or stem. Repeatable.
+    #[arg(long = "pose", value_name = "SCAN=FILE")]
+    pub poses: Vec<PoseOverride>,
+    /// Accept poses with scale or shear (applied to the points; the scanner stays put).
+    #[arg(long)]
+    pub allow_scale: bool,
+}
+
+impl PlaceArgs {
+    /// The library's placement options.
+    pub fn options(&self) -> PlaceOptions {
+        PlaceOptions {
+            align: self.align.clone(),
+            poses: self.poses.clone(),
+            allow_scale: self.allow_scale,
+        }
+    }
+}
+
+/// Flags of `mvao info`.
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// Scan files.
+    #[arg(required = true)]
+    pub scans: Vec<PathBuf>,
+    /// How the scans are placed.
+    #[command(flatten)]
+    pub place: PlaceArgs,
+    /// Sensor model `merge` would use (auto fits the grid or the points).
+    #[arg(long, value_enum, default_value_t = ProjectionChoice::Auto)]
+    pub projection: ProjectionChoice,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
 }
 
 fn parse_neighbors(s: &str) -> Result<u32, String> {
@@ -214,7 +267,8 @@ impl MergeArgs {
         }
         Ok(Config {
             scans: self.scans,
-            align: self.align,
+            place: self.place.options(),
+            format: self.format,
             out_dir: self.output,
             compute: ComputeParams {
                 radius: self.radius,

@@ -41,6 +41,7 @@
 pub mod cli;
 pub mod error;
 pub mod gbuffer;
+pub mod info;
 pub mod io;
 pub mod merge;
 pub mod pipeline;

@@ -35,6 +35,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
+        Command::Info(args) => {
+            let info = mvao::info::describe(&args.scans, &args.place.options(), args.projection)?;
+            if args.json {
+                println!("{}", serde_json::to_string_pretty(&info)?);
+            } else {
+                print!("{}", info.to_text());
+            }
+            Ok(())
+        }
         Command::Synth(args) => {
             let opts = args.into_options();
             let summary = mvao::synth::run(&opts)?;

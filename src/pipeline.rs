@@ -4,9 +4,10 @@
 
 use crate::error::{Error, Result};
 use crate::gbuffer::{self, GBuffer, EMPTY};
-use crate::io::output::{write_preview, write_result_ply, ColorMode};
-use crate::io::ply::PlyFile;
-use crate::io::{align, scan_ply};
+use crate::io::dataset::{Dataset, PlaceOptions};
+use crate::io::output::{write_preview, ColorMode};
+use crate::io::results::{self, WriteOptions};
+use crate::io::source::Format;
 use crate::merge::{self, MergeParams, MergeStats, View};
 use crate::projection::Projection;
 use crate::report::{Parameters, Report, ScanReport, Totals};
@@ -24,8 +25,10 @@ use std::time::Instant;
 pub struct Config {
     /// Input scans.
     pub scans: Vec<PathBuf>,
-    /// Alignment file; `None` looks for exactly one beside the scans.
-    pub align: Option<PathBuf>,
+    /// How the scans are placed (alignment file, `--pose`, `--allow-scale`).
+    pub place: PlaceOptions,
+    /// Output format; `None` follows each input.
+    pub format: Option<Format>,
     /// Output directory.
     pub out_dir: PathBuf,
     /// The computation's parameters.
@@ -477,7 +480,7 @@ pub fn merge_views<'a>(views: &'a [PreparedView], scans: &[Scan]) -> Vec<View<'a
 }
 
 /// World-space bounding box of a scan.
-fn world_bounds(s: &Scan) -> (DVec3, DVec3) {
+pub fn world_bounds(s: &Scan) -> (DVec3, DVec3) {
     let (lo, hi) = s
         .points
         .par_iter()
@@ -553,11 +556,6 @@ impl Observer for Bars {
     }
 }
 
-/// Output file of a scan: `OUTDIR/<stem>.mvao.ply`.
-pub fn output_path(out_dir: &Path, stem: &str) -> PathBuf {
-    out_dir.join(format!("{stem}.mvao.ply"))
-}
-
 /// `mvao merge`: reads, computes, writes. Returns the report (also written as `report.json`).
 pub fn run(cfg: &Config) -> Result<Report> {
     let t_all = Instant::now();
@@ -572,28 +570,57 @@ pub fn run(cfg: &Config) -> Result<Report> {
     if cfg.scans.is_empty() {
         return Err(Error::Param("no scan given".into()));
     }
+    // Before reading anything: one-scan outputs named after their inputs must not clobber an
+    // input (the full check follows once the scans are known).
+    for p in &cfg.scans {
+        if let (Ok(f), Some(stem)) = (Format::of_path(p), p.file_stem()) {
+            let out = cfg.format.unwrap_or(f.default_output());
+            let o = cfg.out_dir.join(format!(
+                "{}.mvao.{}",
+                stem.to_string_lossy(),
+                out.extension()
+            ));
+            if cfg.scans.iter().any(|s| same_file(s, &o)) {
+                return Err(Error::Param(format!(
+                    "{}: output would overwrite an input",
+                    o.display()
+                )));
+            }
+        }
+    }
+    let obs = Bars {
+        quiet: cfg.quiet,
+        bar: std::sync::Mutex::new(None),
+    };
+    // Read and place the scans.
+    let t0 = Instant::now();
+    obs.stage("read", cfg.scans.len() as u64);
+    let ds = Dataset::open(&cfg.scans, &cfg.place, &|| obs.advance(1))?;
+    obs.done("read", 0.0);
+    report.add_time("read", t0.elapsed().as_secs_f64());
+    for w in &ds.warnings {
+        warn(&mut report, w.clone());
+    }
+    report.alignment = ds.alignment.as_ref().map(|a| a.display().to_string());
     // Output names must be distinct and must not clobber anything without --force.
-    let stems: Vec<String> = cfg
-        .scans
-        .iter()
-        .map(|p| {
-            p.file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default()
-        })
-        .collect();
-    for (i, s) in stems.iter().enumerate() {
-        if let Some(j) = stems[..i].iter().position(|t| t == s) {
+    for (i, s) in ds.scans.iter().enumerate() {
+        if let Some(j) = ds.scans[..i].iter().position(|t| t.name == s.name) {
             return Err(Error::Param(format!(
-                "{} and {} would both write {s}.mvao.ply; rename one or run them separately",
-                cfg.scans[j].display(),
-                cfg.scans[i].display()
+                "two scans are named '{}' ({} and {}); rename one or run them separately",
+                s.name,
+                ds.files[ds.origin[j].0].path.display(),
+                ds.files[ds.origin[i].0].path.display()
             )));
         }
     }
-    let mut outputs: Vec<PathBuf> = stems.iter().map(|s| output_path(&cfg.out_dir, s)).collect();
+    let units = results::plan(&ds, cfg.format, &cfg.out_dir)?;
+    let mut outputs: Vec<PathBuf> = units.iter().map(|u| u.path.clone()).collect();
     if cfg.preview {
-        outputs.extend(stems.iter().map(|s| cfg.out_dir.join(format!("{s}.png"))));
+        outputs.extend(
+            ds.scans
+                .iter()
+                .map(|s| cfg.out_dir.join(format!("{}.png", s.name))),
+        );
     }
     outputs.push(cfg.out_dir.join("report.json"));
     for o in &outputs {
@@ -610,83 +637,22 @@ pub fn run(cfg: &Config) -> Result<Report> {
             )));
         }
     }
-
-    let obs = Bars {
-        quiet: cfg.quiet,
-        bar: std::sync::Mutex::new(None),
-    };
-    // Read scans.
-    let t0 = Instant::now();
-    obs.stage("read", cfg.scans.len() as u64);
-    let mut scans = Vec::with_capacity(cfg.scans.len());
-    let mut plys: Vec<PlyFile> = Vec::with_capacity(cfg.scans.len());
-    for p in &cfg.scans {
-        let (s, ply) = scan_ply::read_scan(p)?;
-        let off = s.pose.w_axis.truncate();
-        if off != DVec3::ZERO {
-            warn(
-                &mut report,
-                format!(
-                    "{}: coordinates beyond {} m; re-centred on ({:.3}, {:.3}, {:.3}) (kept in f64) and the scanner is assumed at that centre",
-                    p.display(),
-                    scan_ply::RECENTRE_ABOVE,
-                    off.x,
-                    off.y,
-                    off.z
-                ),
-            );
-        }
-        if s.skipped_nonfinite > 0 {
-            warn(
-                &mut report,
-                format!(
-                    "{}: {} vertices with non-finite coordinates skipped (not written)",
-                    p.display(),
-                    s.skipped_nonfinite
-                ),
-            );
-        }
-        scans.push(s);
-        plys.push(ply);
-        obs.advance(1);
-    }
-    obs.done("read", 0.0);
-    report.add_time("read", t0.elapsed().as_secs_f64());
-
-    // Poses.
-    let align_path = match &cfg.align {
-        Some(a) => Some(a.clone()),
-        None => align::find_alignment_beside(&cfg.scans)?,
-    };
-    if let Some(a) = &align_path {
-        let al = align::read_alignment(a)?;
-        let poses = align::poses_for_scans(&al, &cfg.scans)?;
-        for (s, m) in scans.iter_mut().zip(poses) {
-            // The file's own offset (re-centred georeferenced coordinates) stays inside.
-            s.pose = m * s.pose;
-        }
-        report.alignment = Some(a.display().to_string());
-    } else if scans.len() > 1 {
-        warn(
-            &mut report,
-            "no alignment file given or found beside the scans: all scans are taken as already aligned".into(),
-        );
-    }
-    for s in &scans {
+    let scans = &ds.scans;
+    for s in scans {
         if s.is_empty() {
             return Err(Error::scan(
                 s.path
                     .as_ref()
                     .map(|p| p.display().to_string())
                     .unwrap_or(s.name.clone()),
-                "has no vertex with finite coordinates",
+                "has no point with finite coordinates",
             ));
         }
     }
 
     let prm = &cfg.compute;
     let t0 = Instant::now();
-    let computed = compute(&scans, prm, &obs)?;
+    let computed = compute(scans, prm, &obs)?;
     for r in &computed.scans {
         for (name, secs) in &r.view.times {
             report.add_time(name, *secs);
@@ -712,32 +678,29 @@ pub fn run(cfg: &Config) -> Result<Report> {
     std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
     let t0 = Instant::now();
     obs.stage("write", scans.len() as u64);
-    for ((s, ply), r) in scans.iter().zip(plys).zip(&computed.scans) {
-        let mut ao_v = vec![1.0f32; s.vertex_count];
-        for (k, &vi) in s.source_index.iter().enumerate() {
-            ao_v[vi as usize] = r.ao[k];
+    let comment = format!(
+        "mvao {} {}: ao = {} (1 = open)",
+        env!("CARGO_PKG_VERSION"),
+        if prm.ssao_only { "ssao-only" } else { "merge" },
+        match computed.ssao.estimator {
+            Estimator::Paper => "paper estimator",
+            Estimator::Horizon => "horizon estimator",
         }
-        let ply = if s.skipped_nonfinite > 0 {
-            let mut keep = vec![false; s.vertex_count];
-            for &vi in &s.source_index {
-                keep[vi as usize] = true;
-            }
-            ao_v = s.source_index.iter().map(|&vi| ao_v[vi as usize]).collect();
-            drop_vertices(ply, &keep)?
-        } else {
-            ply
-        };
-        let out = output_path(&cfg.out_dir, &s.name);
-        let comment = format!(
-            "mvao {} {}: ao = {} (1 = open)",
-            env!("CARGO_PKG_VERSION"),
-            if prm.ssao_only { "ssao-only" } else { "merge" },
-            match computed.ssao.estimator {
-                Estimator::Paper => "paper estimator",
-                Estimator::Horizon => "horizon estimator",
-            }
-        );
-        write_result_ply(ply, &ao_v, cfg.gamma, cfg.color, &comment, &out)?;
+    );
+    let aos: Vec<Vec<f32>> = computed.scans.iter().map(|r| r.ao.clone()).collect();
+    let wopts = WriteOptions {
+        gamma: cfg.gamma,
+        color: cfg.color,
+    };
+    for u in &units {
+        results::write(u, &ds, &aos, wopts, &comment)?;
+    }
+    for (i, (s, r)) in scans.iter().zip(&computed.scans).enumerate() {
+        let out = units
+            .iter()
+            .find(|u| u.scans.contains(&i))
+            .map(|u| u.path.clone())
+            .unwrap_or_default();
         if cfg.preview {
             let g = &r.view.gbuf;
             let vals: Vec<Option<f32>> = g
@@ -816,10 +779,4 @@ fn same_file(a: &Path, b: &Path) -> bool {
         (Ok(x), Ok(y)) => x == y,
         _ => false,
     }
-}
-
-/// Removes the vertices not in `keep` (non-finite ones), remapping vertex references in other
-/// elements' index lists.
-fn drop_vertices(ply: PlyFile, keep: &[bool]) -> Result<PlyFile> {
-    ply.retain_vertices(keep)
 }

@@ -10,7 +10,7 @@ use std::io::Write;
 use std::path::{Component, Path, PathBuf};
 
 /// Extensions (lowercase, without the dot) recognised as alignment files.
-pub const ALIGN_EXTENSIONS: [&str; 3] = ["conf", "mlp", "json"];
+pub const ALIGN_EXTENSIONS: [&str; 4] = ["conf", "mlp", "aln", "json"];
 
 /// Largest accepted `max |RᵀR − I|` of a pose's rotation block before it counts as scaled or
 /// sheared; below it the rotation is re-orthonormalised.
@@ -37,10 +37,16 @@ pub struct AlignEntry {
     pub pose: DMat4,
 }
 
-/// Reads an alignment file, choosing the format by extension (`.conf`, `.mlp` or `.json`,
-/// case-insensitive). Every pose is checked with [`check_rigid`]; a file without entries is an
-/// error.
+/// Reads an alignment file, choosing the format by extension (`.conf`, `.mlp`, `.aln` or
+/// `.json`, case-insensitive). Every pose is checked with [`check_rigid`]; a file without
+/// entries is an error.
 pub fn read_alignment(path: &Path) -> Result<Alignment> {
+    read_alignment_with(path, false)
+}
+
+/// [`read_alignment`], accepting poses with scale or shear when `allow_scale` (checked by
+/// [`check_pose`] instead of [`check_rigid`]).
+pub fn read_alignment_with(path: &Path, allow_scale: bool) -> Result<Alignment> {
     let ext = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
@@ -48,23 +54,101 @@ pub fn read_alignment(path: &Path) -> Result<Alignment> {
     let parse: fn(&Path, &str) -> Result<Vec<AlignEntry>> = match ext.as_str() {
         "conf" => parse_conf,
         "mlp" => parse_mlp,
+        "aln" => parse_aln,
         "json" => parse_json,
         _ => {
             return Err(Error::align(
                 path,
-                "unknown alignment format (expected a .conf, .mlp or .json file)",
+                "unknown alignment format (expected a .conf, .mlp, .aln or .json file)",
             ))
         }
     };
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let entries = parse(path, &text)?;
+    let mut entries = parse(path, &text)?;
     if entries.is_empty() {
         return Err(Error::align(path, "the alignment file names no scans"));
+    }
+    for e in &mut entries {
+        e.pose = check_pose(e.pose, path, &e.file, allow_scale)?;
     }
     Ok(Alignment {
         path: path.to_path_buf(),
         entries,
     })
+}
+
+/// Checks a pose: [`check_rigid`] unless `allow_scale`, in which case any finite affine map
+/// with a positive determinant is accepted unchanged (see [`split_scale`]).
+pub fn check_pose(m: DMat4, path: &Path, what: &str, allow_scale: bool) -> Result<DMat4> {
+    if !allow_scale {
+        return check_rigid(m, path, what);
+    }
+    if !m.is_finite() {
+        return Err(Error::align(
+            path,
+            format!("pose of '{what}' has a non-finite entry"),
+        ));
+    }
+    if (m.row(3) - DVec4::W).abs().max_element() > BOTTOM_ROW_TOLERANCE {
+        return Err(Error::align(
+            path,
+            format!("pose of '{what}' has a projective bottom row"),
+        ));
+    }
+    let det = DMat3::from_mat4(m).determinant();
+    if !(det > 1e-12) {
+        return Err(Error::align(
+            path,
+            format!(
+                "pose of '{what}' is singular or a reflection (determinant {det:.6e}); \
+                 --allow-scale accepts scale and shear only"
+            ),
+        ));
+    }
+    Ok(m)
+}
+
+/// Splits an affine pose `M = [A | t]` (det A > 0) into a rigid pose `[R | t]` and the
+/// symmetric stretch `S` with `A = R·S` (polar decomposition). Applying `S` to a scan's
+/// local points (and `S⁻ᵀ` to its normals) and `[R | t]` as its pose places it exactly where
+/// `M` did, while the scanner stays at the local origin and every distance is in world units.
+pub fn split_scale(m: DMat4) -> (DMat4, DMat3) {
+    let a = DMat3::from_mat4(m);
+    let r = nearest_rotation(a);
+    let s = r.transpose() * a;
+    let rigid = DMat4::from_cols(
+        r.x_axis.extend(0.0),
+        r.y_axis.extend(0.0),
+        r.z_axis.extend(0.0),
+        m.w_axis.truncate().extend(1.0),
+    );
+    (rigid, s)
+}
+
+/// Reads a plain 4×4 matrix file (a per-scan sidecar `scan.txt` / `scan.mat`, or a
+/// `--pose` file): 16 numbers, row-major, separated by white space or commas; `#` starts a
+/// comment. The pose is checked with [`check_pose`].
+pub fn read_matrix_file(path: &Path, what: &str, allow_scale: bool) -> Result<DMat4> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut nums: Vec<&str> = Vec::with_capacity(16);
+    for line in text.lines() {
+        let line = line.split('#').next().unwrap_or("");
+        nums.extend(
+            line.split(|c: char| c.is_whitespace() || c == ',' || c == ';')
+                .filter(|t| !t.is_empty()),
+        );
+    }
+    let m = matrix_from_row_major(&nums, |t| parse_number(t))
+        .map_err(|msg| Error::align(path, format!("not a 4×4 matrix of 16 numbers: {msg}")))?;
+    check_pose(m, path, what, allow_scale)
+}
+
+/// The per-scan matrix sidecar of `scan` (`<stem>.txt` or `<stem>.mat` beside it), if any.
+pub fn sidecar_of(scan: &Path) -> Option<PathBuf> {
+    ["mat", "txt", "MAT", "TXT"]
+        .iter()
+        .map(|e| scan.with_extension(e))
+        .find(|p| p.is_file())
 }
 
 /// Looks for alignment files (`.conf`, `.mlp`, `.json`, case-insensitive; hidden files skipped)
@@ -367,7 +451,6 @@ fn parse_conf(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
             r.z_axis.extend(0.0),
             t.extend(1.0),
         );
-        let pose = check_rigid(pose, path, tok[1])?;
         out.push(AlignEntry {
             file: tok[1].to_string(),
             pose,
@@ -480,13 +563,62 @@ fn parse_mlp(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
                                 format!("line {}: matrix of '{file}': {msg}", line_of(mesh_pos)),
                             )
                         })?;
-                    let pose = check_rigid(pose, path, &file)?;
                     out.push(AlignEntry { file, pose });
                 }
             }
             Event::Eof => break,
             _ => {}
         }
+    }
+    Ok(out)
+}
+
+/// Parses a MeshLab alignment (`.aln`): the number of meshes, then per mesh its file name, a
+/// `#` comment line and the 4×4 row-major matrix; a final `0` ends the list.
+fn parse_aln(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty());
+    let Some((n0, first)) = lines.next() else {
+        return Ok(Vec::new());
+    };
+    let count: usize = first.parse().map_err(|_| {
+        Error::align(
+            path,
+            format!("line {n0}: expected the number of meshes, found '{first}'"),
+        )
+    })?;
+    let mut out = Vec::with_capacity(count.min(1 << 16));
+    for k in 0..count {
+        let Some((ln, file)) = lines.next() else {
+            return Err(Error::align(
+                path,
+                format!("the file declares {count} meshes but ends after {k}"),
+            ));
+        };
+        let mut nums: Vec<&str> = Vec::with_capacity(16);
+        let mut last = ln;
+        while nums.len() < 16 {
+            let Some((l, line)) = lines.next() else {
+                return Err(Error::align(
+                    path,
+                    format!("line {last}: the matrix of '{file}' is cut short"),
+                ));
+            };
+            last = l;
+            if line.starts_with('#') {
+                continue;
+            }
+            nums.extend(line.split_whitespace());
+        }
+        let pose = matrix_from_row_major(&nums, |t| parse_number(t))
+            .map_err(|msg| Error::align(path, format!("line {last}: matrix of '{file}': {msg}")))?;
+        out.push(AlignEntry {
+            file: file.to_string(),
+            pose,
+        });
     }
     Ok(out)
 }
@@ -512,7 +644,6 @@ fn parse_json(path: &Path, text: &str) -> Result<Vec<AlignEntry>> {
                 .ok_or_else(|| format!("{v} is not a finite number"))
         })
         .map_err(bad)?;
-        let pose = check_rigid(pose, path, &file)?;
         out.push(AlignEntry { file, pose });
     }
     Ok(out)

@@ -3,8 +3,11 @@
 
 pub mod align;
 pub mod atomic;
+pub mod dataset;
 pub mod output;
 pub mod ply;
-pub mod raw;
 mod ply_retain;
+pub mod raw;
+pub mod results;
 pub mod scan_ply;
+pub mod source;

@@ -3,10 +3,11 @@
 //! per-vertex `row`/`col` indices. Vertices with non-finite coordinates are skipped and counted.
 
 use super::ply::PlyFile;
+use super::raw::{RawGrid, RawScan};
 use crate::error::{Error, Result};
 use crate::projection::SensorModel;
 use crate::scan::{Grid, Scan};
-use glam::{DMat4, DVec3, Vec3};
+use glam::Vec3;
 use std::path::Path;
 
 /// Names accepted for per-vertex grid indices, as (row, column) pairs.
@@ -26,6 +27,17 @@ pub fn read_scan(path: &Path) -> Result<(Scan, PlyFile)> {
 
 /// Builds a [`Scan`] from a parsed PLY file.
 pub fn scan_from_ply(ply: &PlyFile, path: &Path) -> Result<Scan> {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.display().to_string());
+    Ok(super::source::scan_from_raw(raw_from_ply(ply, path, &stem)?, path)?.0)
+}
+
+/// What a PLY file holds of a scan: coordinates, normals when all three components are
+/// present, the native grid (Stanford `range_grid` or per-vertex row/column indices) and the
+/// declared sensor model.
+pub fn raw_from_ply(ply: &PlyFile, path: &Path, name: &str) -> Result<RawScan> {
     for c in ["x", "y", "z"] {
         if !ply.has_property("vertex", c) {
             return Err(Error::format(
@@ -37,109 +49,42 @@ pub fn scan_from_ply(ply: &PlyFile, path: &Path) -> Result<Scan> {
     let xyz = ply
         .vertex_xyz()
         .ok_or_else(|| Error::format(path, "cannot read x/y/z of the vertex element"))?;
-    let vertex_count = xyz.len();
-    let normals_in = if ["nx", "ny", "nz"]
+    let n = xyz.len();
+    let normals = if ["nx", "ny", "nz"]
         .iter()
-        .all(|n| ply.has_property("vertex", n))
+        .all(|c| ply.has_property("vertex", c))
     {
         let cols: Vec<Vec<f64>> = ["nx", "ny", "nz"]
             .iter()
-            .filter_map(|n| ply.scalar_column("vertex", n))
+            .filter_map(|c| ply.scalar_column("vertex", c))
             .collect();
-        (cols.len() == 3).then_some(cols)
+        (cols.len() == 3).then(|| {
+            (0..n)
+                .map(|i| Vec3::new(cols[0][i] as f32, cols[1][i] as f32, cols[2][i] as f32))
+                .collect()
+        })
     } else {
         None
     };
-    let grid_cells = grid_cells(ply, vertex_count);
-
-    let mut points = Vec::with_capacity(vertex_count);
-    let mut source_index = Vec::with_capacity(vertex_count);
-    let mut normals = normals_in
-        .as_ref()
-        .map(|_| Vec::with_capacity(vertex_count));
-    let mut cells = grid_cells.as_ref().map(|_| {
-        (
-            Vec::with_capacity(vertex_count),
-            Vec::with_capacity(vertex_count),
-        )
+    // Vertices missing from the grid are marked with u32::MAX, which lies outside any grid.
+    let grid = grid_cells(ply, n).map(|g| RawGrid {
+        rows: g.rows,
+        cols: g.cols,
+        row: g.row,
+        col: g.col,
     });
-    let offset = recentre_offset(&xyz);
-    let mut skipped = 0usize;
-    for (i, p) in xyz.iter().enumerate() {
-        let v = Vec3::new(
-            (p[0] - offset.x) as f32,
-            (p[1] - offset.y) as f32,
-            (p[2] - offset.z) as f32,
-        );
-        if !v.is_finite() {
-            skipped += 1;
-            continue;
-        }
-        points.push(v);
-        source_index.push(i as u32);
-        if let (Some(out), Some(cols)) = (normals.as_mut(), normals_in.as_ref()) {
-            let n = Vec3::new(cols[0][i] as f32, cols[1][i] as f32, cols[2][i] as f32);
-            // An unusable normal becomes zero and is re-estimated downstream.
-            out.push(n.try_normalize().unwrap_or(Vec3::ZERO));
-        }
-        if let (Some((r, c)), Some(g)) = (cells.as_mut(), grid_cells.as_ref()) {
-            r.push(g.row[i]);
-            c.push(g.col[i]);
-        }
-    }
-    let grid = match (grid_cells, cells) {
-        (Some(g), Some((row, col))) => {
-            // A vertex missing from the grid leaves the grid unusable as a whole.
-            if row.contains(&u32::MAX) {
-                None
-            } else {
-                Some(Grid {
-                    rows: g.rows,
-                    cols: g.cols,
-                    row,
-                    col,
-                })
-            }
-        }
-        _ => None,
-    };
-    Ok(Scan {
-        name: path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| path.display().to_string()),
-        path: Some(path.to_path_buf()),
-        points,
-        source_index,
-        vertex_count,
+    Ok(RawScan {
+        name: name.to_string(),
+        xyz,
         normals,
         grid,
-        pose: DMat4::from_translation(offset),
-        skipped_nonfinite: skipped,
+        pose: None,
+        scanner: None,
         sensor_hint: sensor_hint(ply),
     })
 }
 
-/// Coordinates beyond this (metres) lose millimetres in f32, so the scan is re-centred.
-pub const RECENTRE_ABOVE: f64 = 1e5;
-
-/// The offset subtracted from a scan's coordinates before they become f32: zero for ordinary
-/// scanner-local data; for georeferenced coordinates (beyond [`RECENTRE_ABOVE`]) the centre of
-/// the bounding box, kept in f64 in the pose. The scanner is then assumed at that centre.
-fn recentre_offset(xyz: &[[f64; 3]]) -> DVec3 {
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for p in xyz {
-        let v = DVec3::from_array(*p);
-        if v.is_finite() {
-            lo = lo.min(v);
-            hi = hi.max(v);
-        }
-    }
-    if !lo.is_finite() || lo.abs().max(hi.abs()).max_element() <= RECENTRE_ABOVE {
-        return DVec3::ZERO;
-    }
-    ((lo + hi) * 0.5).round()
-}
+pub use super::source::RECENTRE_ABOVE;
 
 /// A `comment sensor <equirect|perspective|ortho> …` line declares the sensor model.
 fn sensor_hint(ply: &PlyFile) -> Option<SensorModel> {

@@ -1,0 +1,185 @@
+//! `mvao info`: what `merge` would see in each scan — format, points, attributes, pose and
+//! where it came from, grid, the sensor model it would fit, world bounds, and which other
+//! scans it overlaps. Reads and fits, computes no AO.
+
+use crate::error::Result;
+use crate::io::dataset::{Dataset, PlaceOptions};
+use crate::sensor::{self, ProjectionChoice};
+use glam::DVec3;
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+/// One scan's description.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanInfo {
+    /// Scan name.
+    pub name: String,
+    /// Input file.
+    pub file: String,
+    /// Format of the file.
+    pub format: String,
+    /// Records in the file (including invalid ones).
+    pub records: usize,
+    /// Points with finite coordinates.
+    pub points: usize,
+    /// Per-point attributes the file stores.
+    pub attributes: Vec<String>,
+    /// Local → world pose, row-major.
+    pub pose: [[f64; 4]; 4],
+    /// Where the pose came from.
+    pub pose_source: String,
+    /// `[rows, cols]` of the native grid, if any.
+    pub grid: Option<[u32; 2]>,
+    /// Filled share of the native grid.
+    pub grid_filled: Option<f64>,
+    /// Scanner position in world coordinates.
+    pub scanner: [f64; 3],
+    /// Sensor model `merge` would use.
+    pub sensor_model: String,
+    /// Map size `[width, height]`.
+    pub map_size: [usize; 2],
+    /// Why that model.
+    pub sensor_reason: String,
+    /// World bounding box `[min, max]`.
+    pub bounds: [[f64; 3]; 2],
+    /// Names of the scans whose bounds meet this one's.
+    pub overlaps: Vec<String>,
+}
+
+/// The description of a dataset.
+#[derive(Debug, Clone, Serialize)]
+pub struct Info {
+    /// Alignment file used.
+    pub alignment: Option<String>,
+    /// Warnings from reading and placing.
+    pub warnings: Vec<String>,
+    /// Per scan.
+    pub scans: Vec<ScanInfo>,
+}
+
+/// Describes the scans of `paths`.
+pub fn describe(paths: &[PathBuf], place: &PlaceOptions, choice: ProjectionChoice) -> Result<Info> {
+    let ds = Dataset::open(paths, place, &|| {})?;
+    let mut scans = Vec::with_capacity(ds.scans.len());
+    let bounds: Vec<(DVec3, DVec3)> = ds.scans.iter().map(crate::pipeline::world_bounds).collect();
+    for (i, s) in ds.scans.iter().enumerate() {
+        let (fi, k) = ds.origin[i];
+        let f = &ds.files[fi];
+        let setup = sensor::setup(s, choice)?;
+        let p = &setup.projection;
+        let b = bounds[i];
+        // Boxes meeting within 1 ‰ of their size (rounding) count as overlapping.
+        let overlaps = (0..ds.scans.len())
+            .filter(|&j| j != i)
+            .filter(|&j| {
+                let m = 1e-3 * ((b.1 - b.0).length() + (bounds[j].1 - bounds[j].0).length());
+                (b.0 - m).cmple(bounds[j].1).all() && (bounds[j].0 - m).cmple(b.1).all()
+            })
+            .map(|j| ds.scans[j].name.clone())
+            .collect();
+        let m = s.pose;
+        scans.push(ScanInfo {
+            name: s.name.clone(),
+            file: f.path.display().to_string(),
+            format: f.format.to_string(),
+            records: s.vertex_count,
+            points: s.len(),
+            attributes: f.container.attributes(k),
+            pose: [0, 1, 2, 3].map(|r| m.row(r).to_array()),
+            pose_source: ds.pose_source[i].clone(),
+            grid: s.grid.as_ref().map(|g| [g.rows, g.cols]),
+            grid_filled: s.grid.as_ref().map(|g| {
+                let cells = g.rows as f64 * g.cols as f64;
+                if cells > 0.0 {
+                    s.len() as f64 / cells
+                } else {
+                    0.0
+                }
+            }),
+            scanner: m.w_axis.truncate().to_array(),
+            sensor_model: p.sensor_model().to_string(),
+            map_size: [p.width, p.height],
+            sensor_reason: setup.reason.clone(),
+            bounds: [b.0.to_array(), b.1.to_array()],
+            overlaps,
+        });
+    }
+    Ok(Info {
+        alignment: ds.alignment.map(|a| a.display().to_string()),
+        warnings: ds.warnings,
+        scans,
+    })
+}
+
+impl Info {
+    /// A human-readable report, one block per scan.
+    pub fn to_text(&self) -> String {
+        let mut o = String::new();
+        if let Some(a) = &self.alignment {
+            let _ = writeln!(o, "alignment: {a}");
+        }
+        for w in &self.warnings {
+            let _ = writeln!(o, "warning: {w}");
+        }
+        for s in &self.scans {
+            let _ = writeln!(o, "{} ({}, {})", s.name, s.file, s.format);
+            let _ = writeln!(
+                o,
+                "  points:     {} of {} records valid",
+                s.points, s.records
+            );
+            let _ = writeln!(o, "  attributes: {}", s.attributes.join(" "));
+            match (s.grid, s.grid_filled) {
+                (Some([r, c]), Some(f)) => {
+                    let _ = writeln!(
+                        o,
+                        "  grid:       {r} rows × {c} columns, {:.1} % filled",
+                        100.0 * f
+                    );
+                }
+                _ => {
+                    let _ = writeln!(o, "  grid:       none");
+                }
+            }
+            let _ = writeln!(o, "  pose:       from {}", s.pose_source);
+            for r in &s.pose {
+                let _ = writeln!(
+                    o,
+                    "              {:>14.6} {:>14.6} {:>14.6} {:>16.6}",
+                    r[0], r[1], r[2], r[3]
+                );
+            }
+            let _ = writeln!(
+                o,
+                "  scanner:    ({:.3}, {:.3}, {:.3})",
+                s.scanner[0], s.scanner[1], s.scanner[2]
+            );
+            let _ = writeln!(
+                o,
+                "  sensor:     {} {}×{} — {}",
+                s.sensor_model, s.map_size[0], s.map_size[1], s.sensor_reason
+            );
+            let _ = writeln!(
+                o,
+                "  bounds:     ({:.3}, {:.3}, {:.3}) – ({:.3}, {:.3}, {:.3})",
+                s.bounds[0][0],
+                s.bounds[0][1],
+                s.bounds[0][2],
+                s.bounds[1][0],
+                s.bounds[1][1],
+                s.bounds[1][2]
+            );
+            let _ = writeln!(
+                o,
+                "  overlaps:   {}",
+                if s.overlaps.is_empty() {
+                    "none".to_string()
+                } else {
+                    s.overlaps.join(", ")
+                }
+            );
+        }
+        o
+    }
+}

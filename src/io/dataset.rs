@@ -1,0 +1,241 @@
+//! A dataset: every input file read, its scans flattened into one list, and every scan placed
+//! in world coordinates. Poses come, from strongest to weakest, from `--pose SCAN=FILE`, a
+//! per-scan matrix sidecar (`scan.txt` / `scan.mat`), the alignment file (given or found beside
+//! the scans), and the file's own pose (E57, PTX); the alignment pose of a file is applied on
+//! top of the file's own poses.
+
+use super::align::{self, Alignment};
+use super::source::{self, InputFile};
+use crate::error::{Error, Result};
+use crate::scan::Scan;
+use glam::{DMat3, DMat4, Vec3};
+use std::path::{Path, PathBuf};
+
+/// `--pose SCAN=FILE`: the 4×4 matrix in FILE places SCAN (scan coordinates → world),
+/// replacing every other pose of it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseOverride {
+    /// A scan name, a file name, a file stem or a path as given.
+    pub target: String,
+    /// The matrix file.
+    pub file: PathBuf,
+}
+
+impl std::str::FromStr for PoseOverride {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.split_once('=') {
+            Some((t, f)) if !t.is_empty() && !f.is_empty() => Ok(PoseOverride {
+                target: t.to_string(),
+                file: PathBuf::from(f),
+            }),
+            _ => Err(format!("'{s}' is not SCAN=FILE")),
+        }
+    }
+}
+
+/// How the scans are placed.
+#[derive(Debug, Clone, Default)]
+pub struct PlaceOptions {
+    /// Alignment file; `None` looks for exactly one beside the scans.
+    pub align: Option<PathBuf>,
+    /// Per-scan overrides.
+    pub poses: Vec<PoseOverride>,
+    /// Accept poses with scale or shear (the stretch is applied to the points).
+    pub allow_scale: bool,
+}
+
+/// Every input read and placed.
+#[derive(Debug)]
+pub struct Dataset {
+    /// Input files in command-line order (their `scans` moved out into [`Dataset::scans`]).
+    pub files: Vec<InputFile>,
+    /// All scans, file by file, with world poses (rigid).
+    pub scans: Vec<Scan>,
+    /// For each scan: (index into `files`, index within its file).
+    pub origin: Vec<(usize, usize)>,
+    /// For each scan: file coordinates → world (affine when `--allow-scale` let a stretch in).
+    pub file_to_world: Vec<DMat4>,
+    /// For each scan: where its pose came from, for `info` and the report.
+    pub pose_source: Vec<String>,
+    /// The alignment file used, if any.
+    pub alignment: Option<PathBuf>,
+    /// Things the user should know (re-centred coordinates, skipped points, no alignment).
+    pub warnings: Vec<String>,
+}
+
+impl Dataset {
+    /// Reads every file in `paths` and places its scans. `progress` is called once per file.
+    pub fn open(paths: &[PathBuf], opts: &PlaceOptions, progress: &dyn Fn()) -> Result<Dataset> {
+        if paths.is_empty() {
+            return Err(Error::Param("no scan given".into()));
+        }
+        let mut files = Vec::with_capacity(paths.len());
+        let mut warnings = Vec::new();
+        for p in paths {
+            let f = source::read_input(p)?;
+            if f.scans.is_empty() {
+                return Err(Error::format(p, "holds no scan"));
+            }
+            files.push(f);
+            progress();
+        }
+        // Poses per file from the alignment file or sidecars.
+        let fully_overridden = |f: &InputFile| {
+            let single = f.scans.len() == 1;
+            f.scans
+                .iter()
+                .all(|s| override_for(opts, &s.name, &f.path, single).is_some())
+        };
+        let sidecar: Vec<Option<PathBuf>> = files
+            .iter()
+            .map(|f| {
+                (!fully_overridden(f))
+                    .then(|| align::sidecar_of(&f.path))
+                    .flatten()
+            })
+            .collect();
+        let needs_align: Vec<usize> = (0..files.len())
+            .filter(|&i| sidecar[i].is_none() && !fully_overridden(&files[i]))
+            .collect();
+        let align_path = match &opts.align {
+            Some(a) => Some(a.clone()),
+            None if !needs_align.is_empty() => {
+                let list: Vec<PathBuf> =
+                    needs_align.iter().map(|&i| files[i].path.clone()).collect();
+                align::find_alignment_beside(&list)?
+            }
+            None => None,
+        };
+        let mut file_pose: Vec<Option<(DMat4, String)>> = vec![None; files.len()];
+        if let Some(a) = &align_path {
+            let al: Alignment = align::read_alignment_with(a, opts.allow_scale)?;
+            let list: Vec<PathBuf> = needs_align.iter().map(|&i| files[i].path.clone()).collect();
+            let poses = align::poses_for_scans(&al, &list)?;
+            for (&i, m) in needs_align.iter().zip(poses) {
+                file_pose[i] = Some((m, format!("alignment {}", a.display())));
+            }
+        }
+        for (i, s) in sidecar.iter().enumerate() {
+            if let Some(sc) = s {
+                let what = files[i].path.display().to_string();
+                let m = align::read_matrix_file(sc, &what, opts.allow_scale)?;
+                file_pose[i] = Some((m, format!("sidecar {}", sc.display())));
+            }
+        }
+        let mut scans = Vec::new();
+        let mut origin = Vec::new();
+        let mut file_to_world = Vec::new();
+        let mut pose_source = Vec::new();
+        for (fi, f) in files.iter_mut().enumerate() {
+            let own: Vec<Scan> = std::mem::take(&mut f.scans);
+            let single = own.len() == 1;
+            for (k, mut s) in own.into_iter().enumerate() {
+                let offset = f.file_to_local[k];
+                let (m, src) = if let Some(o) = override_for(opts, &s.name, &f.path, single) {
+                    let m = align::read_matrix_file(&o.file, &s.name, opts.allow_scale)?;
+                    (
+                        m * DMat4::from_translation(offset),
+                        format!("--pose {}", o.file.display()),
+                    )
+                } else {
+                    let own_src = if f.format.multi_scan() {
+                        format!("{} pose", f.format)
+                    } else {
+                        "none (identity)".to_string()
+                    };
+                    match &file_pose[fi] {
+                        Some((a, src)) => (*a * s.pose, src.clone()),
+                        None => (s.pose, own_src),
+                    }
+                };
+                let off = offset;
+                if off.length() > 0.0 && !f.format.multi_scan() {
+                    warnings.push(format!(
+                        "{}: coordinates beyond {} m; re-centred on ({:.3}, {:.3}, {:.3}) (kept in f64) and the scanner is assumed at that centre (no scanner position in the file)",
+                        f.path.display(),
+                        source::RECENTRE_ABOVE,
+                        off.x,
+                        off.y,
+                        off.z
+                    ));
+                }
+                if s.skipped_nonfinite > 0 && !f.format.multi_scan() {
+                    warnings.push(format!(
+                        "{}: {} vertices with non-finite coordinates skipped (not written)",
+                        f.path.display(),
+                        s.skipped_nonfinite
+                    ));
+                }
+                let (rigid, stretch) = align::split_scale(m);
+                if (stretch - DMat3::IDENTITY).abs_diff_eq(DMat3::ZERO, 1e-12) {
+                    s.pose = rigid;
+                } else {
+                    apply_stretch(&mut s, stretch);
+                    s.pose = rigid;
+                }
+                file_to_world.push(m * DMat4::from_translation(-offset));
+                pose_source.push(src);
+                origin.push((fi, k));
+                scans.push(s);
+            }
+        }
+        let identity = pose_source.iter().filter(|p| p.starts_with("none")).count();
+        if scans.len() > 1 && identity > 0 {
+            warnings.push(format!(
+                "{identity} of {} scans have no pose (no alignment file given or found beside \
+                 them, no sidecar, no pose in the file): taken as already aligned",
+                scans.len()
+            ));
+        }
+        Ok(Dataset {
+            files,
+            scans,
+            origin,
+            file_to_world,
+            pose_source,
+            alignment: align_path,
+            warnings,
+        })
+    }
+}
+
+/// The last `--pose` naming the scan `name` of `path` (by scan name, or by the file when it
+/// holds one scan).
+fn override_for<'a>(
+    opts: &'a PlaceOptions,
+    name: &str,
+    path: &Path,
+    single: bool,
+) -> Option<&'a PoseOverride> {
+    opts.poses
+        .iter()
+        .rev()
+        .find(|o| o.target == name || (single && names_file(&o.target, path)))
+}
+
+/// True when `target` names `path`: its file name, its stem, or the path as written.
+fn names_file(target: &str, path: &Path) -> bool {
+    path.file_name()
+        .is_some_and(|n| n.to_string_lossy() == target)
+        || path
+            .file_stem()
+            .is_some_and(|n| n.to_string_lossy() == target)
+        || path.display().to_string() == target
+}
+
+/// Applies a symmetric stretch to a scan's local points (in f64) and its normals (by the
+/// inverse transpose), so that a rigid pose places it where the affine one did.
+fn apply_stretch(s: &mut Scan, m: DMat3) {
+    for p in &mut s.points {
+        *p = (m * p.as_dvec3()).as_vec3();
+    }
+    if let Some(ns) = s.normals.as_mut() {
+        let nt = m.inverse().transpose();
+        for n in ns {
+            if *n != Vec3::ZERO {
+                *n = (nt * n.as_dvec3()).normalize_or_zero().as_vec3();
+            }
+        }
+    }
+}

@@ -1,0 +1,341 @@
+//! Where results go and in which format. An output follows its input's format unless
+//! `--format` says otherwise. Within a format family (PLY → PLY, LAS ↔ LAZ, E57 → E57) the
+//! parsed input is written back with every original field and the AO added; across formats
+//! the result is a [`PointTable`] in world coordinates with colour, intensity, AO and grid.
+
+use super::dataset::Dataset;
+use super::output::{grey, write_result_ply, ColorMode};
+use super::ply::{PlyFile, ScalarType};
+use super::raw::{PointTable, RawGrid};
+use super::source::{Container, Format};
+use crate::error::{Error, Result};
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+
+/// One output file and the scans it holds.
+#[derive(Debug, Clone)]
+pub struct OutputUnit {
+    /// The file to write.
+    pub path: PathBuf,
+    /// Its format.
+    pub format: Format,
+    /// Index of the input file in [`Dataset::files`].
+    pub file: usize,
+    /// Indices into [`Dataset::scans`] written to it, in order.
+    pub scans: Vec<usize>,
+    /// True when the input's parsed content is written back (same format family).
+    pub same_family: bool,
+}
+
+/// How results are written.
+#[derive(Debug, Clone, Copy)]
+pub struct WriteOptions {
+    /// Gamma of grey colours.
+    pub gamma: f32,
+    /// What happens to input colours.
+    pub color: ColorMode,
+}
+
+/// True when a result in `out` can be written from the parsed input of format `input`.
+fn same_family(input: Format, out: Format) -> bool {
+    matches!(
+        (input, out),
+        (Format::Ply, Format::Ply)
+            | (Format::Las | Format::Laz, Format::Las | Format::Laz)
+            | (Format::E57, Format::E57)
+    )
+}
+
+/// The outputs of a dataset: one file per input file, except that a multi-scan input written
+/// to a one-scan format gives one file per scan (named after the scan). Errors when two
+/// outputs would share a name.
+pub fn plan(ds: &Dataset, format: Option<Format>, out_dir: &Path) -> Result<Vec<OutputUnit>> {
+    if format == Some(Format::Ptx) {
+        return Err(Error::Param(
+            "PTX is read, not written: choose --format ply, las, laz or e57".into(),
+        ));
+    }
+    let mut units: Vec<OutputUnit> = Vec::new();
+    for (fi, f) in ds.files.iter().enumerate() {
+        let out = format.unwrap_or(f.format.default_output());
+        let scans: Vec<usize> = (0..ds.scans.len())
+            .filter(|&i| ds.origin[i].0 == fi)
+            .collect();
+        let stem = f
+            .path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let fam = same_family(f.format, out);
+        if fam || out == Format::E57 || scans.len() == 1 {
+            units.push(OutputUnit {
+                path: out_dir.join(format!("{stem}.mvao.{}", out.extension())),
+                format: out,
+                file: fi,
+                scans,
+                same_family: fam,
+            });
+        } else {
+            for i in scans {
+                units.push(OutputUnit {
+                    path: out_dir.join(format!("{}.mvao.{}", ds.scans[i].name, out.extension())),
+                    format: out,
+                    file: fi,
+                    scans: vec![i],
+                    same_family: false,
+                });
+            }
+        }
+    }
+    for (i, u) in units.iter().enumerate() {
+        if let Some(v) = units[..i].iter().find(|v| v.path == u.path) {
+            return Err(Error::Param(format!(
+                "{} and {} would both write {}; rename one or run them separately",
+                ds.files[v.file].path.display(),
+                ds.files[u.file].path.display(),
+                u.path.display()
+            )));
+        }
+    }
+    Ok(units)
+}
+
+/// Writes one output. `ao[i]` holds scan `i`'s AO per valid point (the order of
+/// [`Scan::points`](crate::scan::Scan::points)); every value must be finite.
+pub fn write(
+    unit: &OutputUnit,
+    ds: &Dataset,
+    ao: &[Vec<f32>],
+    opts: WriteOptions,
+    comment: &str,
+) -> Result<()> {
+    for &i in &unit.scans {
+        if ao[i].iter().any(|a| !a.is_finite()) {
+            return Err(Error::Param(format!(
+                "{}: refusing to write a non-finite ao value (internal error)",
+                unit.path.display()
+            )));
+        }
+    }
+    let file = &ds.files[unit.file];
+    if unit.same_family {
+        match &file.container {
+            Container::Ply(ply) => {
+                let i = unit.scans[0];
+                let s = &ds.scans[i];
+                let mut per_vertex = vec![1.0f32; s.vertex_count];
+                for (k, &vi) in s.source_index.iter().enumerate() {
+                    per_vertex[vi as usize] = ao[i][k];
+                }
+                let ply: PlyFile = if s.skipped_nonfinite > 0 {
+                    let mut keep = vec![false; s.vertex_count];
+                    for &vi in &s.source_index {
+                        keep[vi as usize] = true;
+                    }
+                    per_vertex = s
+                        .source_index
+                        .iter()
+                        .map(|&vi| per_vertex[vi as usize])
+                        .collect();
+                    ply.as_ref().clone().retain_vertices(&keep)?
+                } else {
+                    ply.as_ref().clone()
+                };
+                write_result_ply(
+                    ply,
+                    &per_vertex,
+                    opts.gamma,
+                    opts.color,
+                    comment,
+                    &unit.path,
+                )
+            }
+        }
+    } else {
+        let tables: Vec<PointTable> = unit
+            .scans
+            .iter()
+            .map(|&i| table_of(ds, i, &ao[i], opts))
+            .collect::<Result<_>>()?;
+        match unit.format {
+            Format::Ply => write_table_ply(&tables[0], comment, &unit.path),
+            f => Err(Error::Param(format!(
+                "{}: writing {f} is not supported by this build",
+                unit.path.display()
+            ))),
+        }
+    }
+}
+
+/// The result of scan `i` as a table in world coordinates (valid points only).
+pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Result<PointTable> {
+    let s = &ds.scans[i];
+    let (fi, _) = ds.origin[i];
+    let file = &ds.files[fi];
+    let m = ds.file_to_world[i];
+    // World coordinates from the file's own f64 coordinates and the exact f64 placement.
+    let (orig, (in_rgb, intensity, extra)) = match &file.container {
+        Container::Ply(ply) => (
+            ply.vertex_xyz().unwrap_or_default(),
+            ply_attributes(ply, &s.source_index),
+        ),
+    };
+    let xyz: Vec<[f64; 3]> = s
+        .source_index
+        .iter()
+        .zip(&s.points)
+        .map(|(&vi, p)| match orig.get(vi as usize) {
+            Some(o) => m.transform_point3(DVec3::from_array(*o)).to_array(),
+            None => s.pose.transform_point3(p.as_dvec3()).to_array(),
+        })
+        .collect();
+    let rgb = colours(in_rgb.as_deref(), ao, opts);
+    let grid = s.grid.as_ref().map(|g| RawGrid {
+        rows: g.rows,
+        cols: g.cols,
+        row: g.row.clone(),
+        col: g.col.clone(),
+    });
+    Ok(PointTable {
+        name: s.name.clone(),
+        xyz,
+        pose: glam::DMat4::IDENTITY,
+        rgb: Some(rgb),
+        intensity,
+        ao: ao.to_vec(),
+        grid,
+        extra,
+    })
+}
+
+/// Output colours from the input's (if any) and the AO, as [`ColorMode`] says.
+pub fn colours(input: Option<&[[u8; 3]]>, ao: &[f32], opts: WriteOptions) -> Vec<[u8; 3]> {
+    ao.iter()
+        .enumerate()
+        .map(|(k, &a)| {
+            let g = grey(a, opts.gamma);
+            match (input, opts.color) {
+                (Some(c), ColorMode::Keep) => c[k],
+                (Some(c), ColorMode::Modulate) => {
+                    c[k].map(|v| ((v as f32) * (g as f32) / 255.0).round().clamp(0.0, 255.0) as u8)
+                }
+                _ => [g, g, g],
+            }
+        })
+        .collect()
+}
+
+/// Colour, intensity and other scalar properties of a PLY's vertices at `index`.
+type Attributes = (
+    Option<Vec<[u8; 3]>>,
+    Option<Vec<f32>>,
+    Vec<(String, Vec<f64>)>,
+);
+
+fn ply_attributes(ply: &PlyFile, index: &[u32]) -> Attributes {
+    let pick = |col: Vec<f64>| -> Vec<f64> { index.iter().map(|&i| col[i as usize]).collect() };
+    let rgb = match (
+        ply.scalar_column("vertex", "red"),
+        ply.scalar_column("vertex", "green"),
+        ply.scalar_column("vertex", "blue"),
+    ) {
+        (Some(r), Some(g), Some(b)) => Some(
+            index
+                .iter()
+                .map(|&i| {
+                    let i = i as usize;
+                    [r[i], g[i], b[i]].map(|v| v.clamp(0.0, 255.0) as u8)
+                })
+                .collect(),
+        ),
+        _ => None,
+    };
+    let intensity = ply
+        .scalar_column("vertex", "intensity")
+        .map(|c| pick(c).iter().map(|&v| v as f32).collect());
+    const SKIP: [&str; 12] = [
+        "x",
+        "y",
+        "z",
+        "red",
+        "green",
+        "blue",
+        "alpha",
+        "intensity",
+        "ao",
+        "row",
+        "col",
+        "nx",
+    ];
+    let mut extra = Vec::new();
+    if let Some(ei) = ply.element("vertex") {
+        for p in &ply.header.elements[ei].props {
+            if SKIP.contains(&p.name.as_str()) || p.name == "ny" || p.name == "nz" {
+                continue;
+            }
+            if let Some(c) = ply.scalar_column("vertex", &p.name) {
+                extra.push((p.name.clone(), pick(c)));
+            }
+        }
+    }
+    (rgb, intensity, extra)
+}
+
+/// Writes a table as a binary little-endian PLY: double x y z (world), uchar colour, float
+/// intensity and ao, int row/col when gridded, and the extra fields as doubles.
+pub fn write_table_ply(t: &PointTable, comment: &str, path: &Path) -> Result<()> {
+    let n = t.len();
+    let world: Vec<DVec3> = (0..n).map(|k| t.world(k)).collect();
+    let xs: Vec<f64> = world.iter().map(|p| p.x).collect();
+    let ys: Vec<f64> = world.iter().map(|p| p.y).collect();
+    let zs: Vec<f64> = world.iter().map(|p| p.z).collect();
+    let mut cols: Vec<(String, ScalarType, Vec<f64>)> = vec![
+        ("x".into(), ScalarType::F64, xs),
+        ("y".into(), ScalarType::F64, ys),
+        ("z".into(), ScalarType::F64, zs),
+    ];
+    if let Some(rgb) = &t.rgb {
+        for (c, name) in ["red", "green", "blue"].iter().enumerate() {
+            cols.push((
+                name.to_string(),
+                ScalarType::U8,
+                rgb.iter().map(|v| v[c] as f64).collect(),
+            ));
+        }
+    }
+    if let Some(i) = &t.intensity {
+        cols.push((
+            "intensity".into(),
+            ScalarType::F32,
+            i.iter().map(|&v| v as f64).collect(),
+        ));
+    }
+    cols.push((
+        "ao".into(),
+        ScalarType::F32,
+        t.ao.iter().map(|&v| v as f64).collect(),
+    ));
+    if let Some(g) = &t.grid {
+        cols.push((
+            "row".into(),
+            ScalarType::I32,
+            g.row.iter().map(|&v| v as f64).collect(),
+        ));
+        cols.push((
+            "col".into(),
+            ScalarType::I32,
+            g.col.iter().map(|&v| v as f64).collect(),
+        ));
+    }
+    for (name, v) in &t.extra {
+        if !cols.iter().any(|c| &c.0 == name) {
+            cols.push((name.clone(), ScalarType::F64, v.clone()));
+        }
+    }
+    let refs: Vec<(&str, ScalarType, &[f64])> = cols
+        .iter()
+        .map(|(n, t, v)| (n.as_str(), *t, v.as_slice()))
+        .collect();
+    let ply = PlyFile::from_vertex_columns(&refs, &[comment.to_string()])?;
+    ply.write_path(path)
+}

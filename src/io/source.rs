@@ -1,0 +1,251 @@
+//! Input files of every supported format as scans, and results written back in the input's
+//! format (or another one). A file may hold one scan (PLY, LAS/LAZ) or several (E57, PTX);
+//! each reader hands over [`RawScan`]s, which become [`Scan`]s here, with the scanner put at the
+//! local origin.
+
+use super::ply::PlyFile;
+use super::raw::{RawGrid, RawScan};
+use crate::error::{Error, Result};
+use crate::scan::{Grid, Scan};
+use glam::{DMat4, DVec3, Vec3};
+use std::path::{Path, PathBuf};
+
+/// A scan file format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// Stanford PLY (ascii, binary little or big endian).
+    Ply,
+    /// ASPRS LAS 1.0–1.4.
+    Las,
+    /// LAZ (compressed LAS).
+    Laz,
+    /// ASTM E57.
+    E57,
+    /// Leica PTX (ascii, gridded). Read only.
+    Ptx,
+}
+
+impl Format {
+    /// The format of `path`, by extension (case-insensitive).
+    pub fn of_path(path: &Path) -> Result<Format> {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        match ext.as_str() {
+            "ply" => Ok(Format::Ply),
+            "las" => Ok(Format::Las),
+            "laz" => Ok(Format::Laz),
+            "e57" => Ok(Format::E57),
+            "ptx" => Ok(Format::Ptx),
+            _ => Err(Error::format(
+                path,
+                "unknown scan format (expected .ply, .las, .laz, .e57 or .ptx)",
+            )),
+        }
+    }
+
+    /// The file extension written for this format.
+    pub fn extension(self) -> &'static str {
+        match self {
+            Format::Ply => "ply",
+            Format::Las => "las",
+            Format::Laz => "laz",
+            Format::E57 => "e57",
+            Format::Ptx => "ptx",
+        }
+    }
+
+    /// True when one file of this format may hold several scans.
+    pub fn multi_scan(self) -> bool {
+        matches!(self, Format::E57 | Format::Ptx)
+    }
+
+    /// The output format for results of an input in this format when none is chosen: the
+    /// same, except PTX (not written), whose results go to PLY with the grid kept.
+    pub fn default_output(self) -> Format {
+        match self {
+            Format::Ptx => Format::Ply,
+            f => f,
+        }
+    }
+}
+
+impl std::fmt::Display for Format {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.extension())
+    }
+}
+
+/// The parsed content of an input file, kept so results can be written back with every
+/// original field.
+#[derive(Debug)]
+pub enum Container {
+    /// A PLY file.
+    Ply(Box<PlyFile>),
+}
+
+impl Container {
+    /// Names of the per-point attributes of scan `k` of the file.
+    pub fn attributes(&self, _k: usize) -> Vec<String> {
+        match self {
+            Container::Ply(p) => p
+                .element("vertex")
+                .map(|e| {
+                    p.header.elements[e]
+                        .props
+                        .iter()
+                        .map(|p| p.name.clone())
+                        .collect()
+                })
+                .unwrap_or_default(),
+        }
+    }
+}
+
+/// One input file: its format, its parsed content and its scans (identity alignment, poses
+/// from the file itself).
+#[derive(Debug)]
+pub struct InputFile {
+    /// The file.
+    pub path: PathBuf,
+    /// Its format.
+    pub format: Format,
+    /// The parsed content.
+    pub container: Container,
+    /// Its scans, in file order.
+    pub scans: Vec<Scan>,
+    /// Per scan: file coordinates → scan-local coordinates before any alignment (the offset
+    /// subtracted and the scanner moved to the origin). The pipeline composes it with poses.
+    pub file_to_local: Vec<DVec3>,
+}
+
+/// Reads any supported scan file.
+pub fn read_input(path: &Path) -> Result<InputFile> {
+    let format = Format::of_path(path)?;
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.display().to_string());
+    match format {
+        Format::Ply => {
+            let ply = PlyFile::read_path(path)?;
+            let raw = super::scan_ply::raw_from_ply(&ply, path, &stem)?;
+            let (scan, off) = scan_from_raw(raw, path)?;
+            Ok(InputFile {
+                path: path.to_path_buf(),
+                format,
+                container: Container::Ply(Box::new(ply)),
+                scans: vec![scan],
+                file_to_local: vec![off],
+            })
+        }
+        f => Err(Error::format(
+            path,
+            format!("{f} input is not supported by this build"),
+        )),
+    }
+}
+
+/// Coordinates beyond this (metres) lose millimetres in f32, so the scan is re-centred.
+pub const RECENTRE_ABOVE: f64 = 1e5;
+
+/// Builds a [`Scan`] from what a reader handed over. Returns it with the offset subtracted
+/// from the file coordinates: the declared scanner position, else zero for ordinary
+/// scanner-local data, else (coordinates beyond [`RECENTRE_ABOVE`], scanner unknown) the
+/// centre of the bounding box. The file's own pose and the offset go into [`Scan::pose`].
+pub fn scan_from_raw(raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
+    let n = raw.xyz.len();
+    if u32::try_from(n).is_err() {
+        return Err(Error::format(
+            path,
+            format!(
+                "scan {}: {n} points; one scan may hold at most 2^32 − 1",
+                raw.name
+            ),
+        ));
+    }
+    let offset = match raw.scanner {
+        Some(s) if s.is_finite() => s,
+        _ => recentre_offset(&raw.xyz),
+    };
+    let mut points = Vec::with_capacity(n);
+    let mut source_index = Vec::with_capacity(n);
+    let mut normals = raw.normals.as_ref().map(|_| Vec::with_capacity(n));
+    let mut cells = raw
+        .grid
+        .as_ref()
+        .map(|_| (Vec::with_capacity(n), Vec::with_capacity(n)));
+    let mut skipped = 0usize;
+    for (i, p) in raw.xyz.iter().enumerate() {
+        let v = Vec3::new(
+            (p[0] - offset.x) as f32,
+            (p[1] - offset.y) as f32,
+            (p[2] - offset.z) as f32,
+        );
+        if !v.is_finite() {
+            skipped += 1;
+            continue;
+        }
+        points.push(v);
+        source_index.push(i as u32);
+        if let (Some(out), Some(given)) = (normals.as_mut(), raw.normals.as_ref()) {
+            // An unusable normal becomes zero and is re-estimated downstream.
+            out.push(given[i].try_normalize().unwrap_or(Vec3::ZERO));
+        }
+        if let (Some((r, c)), Some(g)) = (cells.as_mut(), raw.grid.as_ref()) {
+            r.push(g.row[i]);
+            c.push(g.col[i]);
+        }
+    }
+    let grid = match (raw.grid, cells) {
+        (Some(RawGrid { rows, cols, .. }), Some((row, col))) => {
+            // A valid point outside the grid leaves the grid unusable as a whole.
+            if row.iter().zip(&col).any(|(&r, &c)| r >= rows || c >= cols) {
+                None
+            } else {
+                Some(Grid {
+                    rows,
+                    cols,
+                    row,
+                    col,
+                })
+            }
+        }
+        _ => None,
+    };
+    let pose = raw.pose.unwrap_or(DMat4::IDENTITY) * DMat4::from_translation(offset);
+    Ok((
+        Scan {
+            name: raw.name,
+            path: Some(path.to_path_buf()),
+            points,
+            source_index,
+            vertex_count: n,
+            normals,
+            grid,
+            pose,
+            skipped_nonfinite: skipped,
+            sensor_hint: raw.sensor_hint,
+        },
+        offset,
+    ))
+}
+
+/// The bounding-box centre of `xyz` (rounded to metres) when it lies beyond
+/// [`RECENTRE_ABOVE`], else zero.
+fn recentre_offset(xyz: &[[f64; 3]]) -> DVec3 {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for p in xyz {
+        let v = DVec3::from_array(*p);
+        if v.is_finite() {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    if !lo.is_finite() || lo.abs().max(hi.abs()).max_element() <= RECENTRE_ABOVE {
+        return DVec3::ZERO;
+    }
+    ((lo + hi) * 0.5).round()
+}
