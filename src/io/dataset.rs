@@ -132,22 +132,81 @@ impl Dataset {
             let single = own.len() == 1;
             for (k, mut s) in own.into_iter().enumerate() {
                 let offset = f.file_to_local[k];
-                let (m, src) = if let Some(o) = override_for(opts, &s.name, &f.path, single) {
-                    let m = align::read_matrix_file(&o.file, &s.name, opts.allow_scale)?;
-                    (
-                        m * DMat4::from_translation(offset),
-                        format!("--pose {}", o.file.display()),
-                    )
-                } else {
-                    let own_src = if f.format.multi_scan() {
-                        format!("{} pose", f.format)
-                    } else {
-                        "none (identity)".to_string()
+                let given: Option<(DMat4, String)> =
+                    match override_for(opts, &s.name, &f.path, single) {
+                        Some(o) => Some((
+                            align::read_matrix_file(&o.file, &s.name, opts.allow_scale)?,
+                            format!("--pose {}", o.file.display()),
+                        )),
+                        None => file_pose[fi].clone(),
                     };
-                    match &file_pose[fi] {
-                        Some((a, src)) => (*a * s.pose, src.clone()),
-                        None => (s.pose, own_src),
+                if f.format.world_coordinates() {
+                    // LAS/LAZ hold world coordinates: a pose says where the scanner stood.
+                    let m = match given {
+                        Some((m, src)) => {
+                            let (rigid, _) = align::split_scale(m);
+                            let to_local = rigid.inverse() * s.pose;
+                            let rot = glam::DMat3::from_mat4(to_local);
+                            for p in &mut s.points {
+                                *p = to_local.transform_point3(p.as_dvec3()).as_vec3();
+                            }
+                            if let Some(ns) = s.normals.as_mut() {
+                                for n in ns {
+                                    *n = (rot * n.as_dvec3()).as_vec3();
+                                }
+                            }
+                            s.pose = rigid;
+                            pose_source
+                                .push(format!("{src} (scanner pose; file coordinates are world)"));
+                            DMat4::IDENTITY
+                        }
+                        None => {
+                            let at = if offset == glam::DVec3::ZERO {
+                                "the coordinate origin".to_string()
+                            } else {
+                                format!(
+                                    "the centre of its bounds ({:.3}, {:.3}, {:.3})",
+                                    offset.x, offset.y, offset.z
+                                )
+                            };
+                            warnings.push(format!(
+                                "{}: {} files carry no scanner position; the scanner is assumed at \
+                                 {at}. Give its pose (scanner → world) with --pose {}=FILE, a \
+                                 sidecar {} or an alignment file",
+                                f.path.display(),
+                                f.format,
+                                s.name,
+                                f.path.with_extension("txt").display()
+                            ));
+                            pose_source.push("none (no scanner position)".into());
+                            DMat4::IDENTITY
+                        }
+                    };
+                    if s.skipped_nonfinite > 0 {
+                        warnings.push(format!(
+                            "{}: {} points with non-finite coordinates skipped",
+                            f.path.display(),
+                            s.skipped_nonfinite
+                        ));
                     }
+                    file_to_world.push(m);
+                    origin.push((fi, k));
+                    scans.push(s);
+                    continue;
+                }
+                let (m, src) = match given {
+                    Some((a, src)) if override_for(opts, &s.name, &f.path, single).is_some() => {
+                        (a * DMat4::from_translation(offset), src)
+                    }
+                    Some((a, src)) => (a * s.pose, src),
+                    None => (
+                        s.pose,
+                        if f.format.multi_scan() {
+                            format!("{} pose", f.format)
+                        } else {
+                            "none (identity)".to_string()
+                        },
+                    ),
                 };
                 let off = offset;
                 if off.length() > 0.0 && !f.format.multi_scan() {
@@ -180,7 +239,10 @@ impl Dataset {
                 scans.push(s);
             }
         }
-        let identity = pose_source.iter().filter(|p| p.starts_with("none")).count();
+        let identity = pose_source
+            .iter()
+            .filter(|p| *p == "none (identity)")
+            .count();
         if scans.len() > 1 && identity > 0 {
             warnings.push(format!(
                 "{identity} of {} scans have no pose (no alignment file given or found beside \

@@ -57,6 +57,12 @@ impl Format {
         }
     }
 
+    /// True when the format stores world (georeferenced) coordinates rather than scanner-local
+    /// ones: a pose given for such a scan is the scanner's pose, not a transform of the points.
+    pub fn world_coordinates(self) -> bool {
+        matches!(self, Format::Las | Format::Laz)
+    }
+
     /// True when one file of this format may hold several scans.
     pub fn multi_scan(self) -> bool {
         matches!(self, Format::E57 | Format::Ptx)
