@@ -44,6 +44,7 @@ pub mod gbuffer;
 pub mod info;
 pub mod io;
 pub mod merge;
+pub mod plot;
 pub mod pipeline;
 pub mod projection;
 pub mod report;
