@@ -3,6 +3,7 @@
 
 use crate::error::Result;
 use std::fmt::Write as _;
+use std::io::Write as _;
 use std::path::Path;
 
 /// One point of the plot.
