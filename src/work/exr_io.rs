@@ -101,16 +101,14 @@ pub fn encode_maps(
         blocks: Blocks::ScanLines,
         line_order: LineOrder::Increasing,
     };
-    let mut attrs = LayerAttributes::default();
-    attrs.software_name = Some(Text::from(
-        concat!("mvao ", env!("CARGO_PKG_VERSION"))
-            .to_string()
-            .as_str(),
-    ));
-    attrs.comments = Some(Text::from(
-        "mvao per-view maps: local position P, normal N, radius, depth (inf = empty), \
-         ssao, border (px), index (u32, 4294967295 = empty), no_sample",
-    ));
+    let attrs = LayerAttributes {
+        software_name: Some(Text::from(concat!("mvao ", env!("CARGO_PKG_VERSION")))),
+        comments: Some(Text::from(
+            "mvao per-view maps: local position P, normal N, radius, depth (inf = empty), \
+             ssao, border (px), index (u32, 4294967295 = empty), no_sample",
+        )),
+        ..Default::default()
+    };
     let layer = Layer::new(
         (w, h),
         attrs,

@@ -264,8 +264,10 @@ impl Manifest {
         self.entries.keys().map(String::as_str)
     }
 
-    /// True when `key`'s products were made by this mvao from these inputs (same paths, same
-    /// content) with these parameters, and are still on disk ([`Check::Quick`]).
+    /// True when `key`'s products were made by this mvao from these inputs (same paths in the
+    /// same order, same content) with these parameters, and are still on disk
+    /// ([`Check::Quick`]). Products are checked by size here and by hash when loaded, so a
+    /// product damaged in place is found by the load, whose error means "recompute".
     pub fn is_fresh<P: AsRef<Path>>(&self, key: &str, inputs: &[P], params: &Value) -> bool {
         self.why_stale(key, inputs, params, Check::Quick).is_none()
     }
@@ -589,4 +591,56 @@ fn stat(path: &Path) -> Result<Stat> {
 
 fn path_string(p: &Path) -> String {
     p.to_string_lossy().into_owned()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn floats_round_trip_through_json_exactly() {
+        // Entry checksums re-encode parsed entries: every finite float must come back with
+        // its bits (serde_json's `float_roundtrip`).
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        for _ in 0..20_000 {
+            let d = f64::from_bits(next());
+            let f = f32::from_bits(next() as u32);
+            if d.is_finite() {
+                let back: f64 = serde_json::from_str(&serde_json::to_string(&d).unwrap()).unwrap();
+                assert_eq!(back.to_bits(), d.to_bits(), "{d:e}");
+            }
+            if f.is_finite() {
+                let back: f32 = serde_json::from_str(&serde_json::to_string(&f).unwrap()).unwrap();
+                assert_eq!(back.to_bits(), f.to_bits(), "{f:e}");
+            }
+        }
+    }
+
+    #[test]
+    fn parameter_hash_ignores_key_order_only() {
+        let a: Value = serde_json::from_str(r#"{"x": 1, "y": {"b": [1, 2], "a": "s"}}"#).unwrap();
+        let b: Value = serde_json::from_str(r#"{"y": {"a": "s", "b": [1, 2]}, "x": 1}"#).unwrap();
+        let c: Value = serde_json::from_str(r#"{"y": {"a": "s", "b": [2, 1]}, "x": 1}"#).unwrap();
+        assert_eq!(params_hash(&a), params_hash(&b));
+        assert_ne!(params_hash(&a), params_hash(&c));
+        assert_eq!(params_hash(&a).len(), 32);
+    }
+
+    #[test]
+    fn file_times_before_the_epoch() {
+        let t = UNIX_EPOCH - Duration::new(1, 250_000_000);
+        assert_eq!(
+            FileTime::from_system(t),
+            FileTime {
+                secs: -2,
+                nanos: 750_000_000
+            }
+        );
+    }
 }

@@ -157,7 +157,7 @@ pub fn save_view_with(
 fn check_view(key: &str, v: &PreparedView) -> Result<()> {
     let g = &v.gbuf;
     let p = &v.sensor.projection;
-    let n = g.width.checked_mul(g.height).unwrap_or(usize::MAX);
+    let n = g.width.saturating_mul(g.height);
     let np = v.radii.len();
     let bad = |what: &str, got: usize, want: usize| {
         Err(Error::scan(
