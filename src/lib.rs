@@ -52,5 +52,6 @@ pub mod scan;
 pub mod sensor;
 pub mod ssao;
 pub mod synth;
+pub mod work;
 
 pub use error::{Error, Result};

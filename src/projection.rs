@@ -16,7 +16,7 @@
 //! view axis from the scan's nearest point (orthographic). Pixel `i` spans `[i, i+1)`.
 
 use glam::{Mat2, Mat3, Vec2, Vec3, Vec4};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
 /// Which sensor model a scan uses.
@@ -42,7 +42,7 @@ impl std::fmt::Display for SensorModel {
 }
 
 /// Model-specific parameters of a [`Projection`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum Model {
     /// See the module docs.
     Equirect {
@@ -88,7 +88,7 @@ pub enum Model {
 /// A monotone piecewise-linear correction of one pixel axis: a native grid whose rows (or
 /// columns) were not taken at even angular steps (a scanner head turning at varying speed)
 /// is mapped exactly, where a single linear fit would be off by pixels.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Warp {
     /// `knots[k]` = the linear-model coordinate of grid index `k`'s centre, strictly increasing.
     knots: Arc<[f32]>,
@@ -137,7 +137,7 @@ impl Warp {
 
 /// A sensor model with its map size: everything needed to go between a scan's local points
 /// and its G-buffer pixels.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Projection {
     /// Parameters.
     pub model: Model,

@@ -6,11 +6,11 @@ use crate::error::{Error, Result};
 use crate::projection::{Model, Projection, SensorModel, Warp};
 use crate::scan::Scan;
 use glam::{DMat3, DMat4, DVec3, DVec4, Mat2, Vec2, Vec3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};
 
 /// What the user asked for with `--projection`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ProjectionChoice {
     /// Decide from the data (grid fit, or the spread of point directions).
@@ -25,7 +25,7 @@ pub enum ProjectionChoice {
 }
 
 /// A scan's sensor: its projection, how its own points map to pixels, and why it was chosen.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SensorSetup {
     /// The projection (model + map size).
     pub projection: Projection,
