@@ -233,7 +233,43 @@ pub fn prepare_view(
     };
     let sensor = sensor::setup(scan, choice)?;
     lap("sensor", &mut t);
+    let (normals, radii, note) = scan_normals(scan, &sensor);
     let proj: Projection = sensor.projection.clone();
+    lap("normals", &mut t);
+    let (pixel, depth) = gbuffer::point_pixels(&scan.points, &proj, sensor.grid_pixels.as_deref());
+    let gbuf = gbuffer::rasterize(
+        proj.width,
+        proj.height,
+        &pixel,
+        &depth,
+        &scan.points,
+        &normals,
+        &radii,
+    );
+    lap("gbuffer", &mut t);
+    let ssao = ssao::compute(&gbuf, &proj, prm);
+    lap("ssao", &mut t);
+    let border =
+        crate::merge::border::border_distance(&gbuf.depth, gbuf.width, gbuf.height, proj.wrap_x);
+    lap("border", &mut t);
+    Ok(PreparedView {
+        sensor,
+        gbuf,
+        ssao,
+        border,
+        radii,
+        pixel,
+        depth,
+        normals_note: note,
+        times,
+    })
+}
+
+/// Each point's unit normal (the input's, facing the sensor, or estimated where missing) and
+/// radius `rad(p)`, with a note on where the normals came from. Neighbours come from the
+/// native grid when the sensor model uses it, else from a k-d tree.
+pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, String) {
+    let proj: &Projection = &sensor.projection;
     let invalid_normals = scan
         .normals
         .as_ref()
@@ -283,34 +319,7 @@ pub fn prepare_view(
         ),
         (None, None) => (vec![Vec3::Z; scan.len()], "none".into()),
     };
-    lap("normals", &mut t);
-    let (pixel, depth) = gbuffer::point_pixels(&scan.points, &proj, sensor.grid_pixels.as_deref());
-    let gbuf = gbuffer::rasterize(
-        proj.width,
-        proj.height,
-        &pixel,
-        &depth,
-        &scan.points,
-        &normals,
-        &radii,
-    );
-    lap("gbuffer", &mut t);
-    let ssao = ssao::compute(&gbuf, &proj, prm);
-    lap("ssao", &mut t);
-    let border =
-        crate::merge::border::border_distance(&gbuf.depth, gbuf.width, gbuf.height, proj.wrap_x);
-    lap("border", &mut t);
-    Ok(PreparedView {
-        sensor,
-        gbuf,
-        ssao,
-        border,
-        radii,
-        pixel,
-        depth,
-        normals_note: note,
-        times,
-    })
+    (normals, radii, note)
 }
 
 /// Flips `n` to face the sensor direction `t`.
