@@ -62,12 +62,157 @@ impl std::ops::AddAssign for MergeStats {
     }
 }
 
-/// MVAO of scan i's points. `own` is each point's SSAO in its own scan (the fallback when all
-/// weights are zero) and `own_pixel` its pixel there ([`EMPTY`] if none): in its own view a
-/// point is looked up at its own pixel, never re-projected (a fitted projection may be off
-/// its native grid by a pixel). `views[i]` must be scan i itself. Views listed in `skip` are
-/// not visited (pairs known not to overlap). `progress` is called with the number of points
-/// of each finished chunk.
+/// Per-point running sums of the merge of one scan (eq. 8): Σ SSAO·w and Σ w over the views
+/// added so far. Views may be added one at a time (loaded on demand) in any grouping; adding
+/// them in the same order gives bit-identical sums.
+#[derive(Debug, Clone)]
+pub struct Accum {
+    num: Vec<f32>,
+    den: Vec<f32>,
+    stats: MergeStats,
+}
+
+impl Accum {
+    /// Empty sums for `n` points.
+    pub fn new(n: usize) -> Accum {
+        Accum {
+            num: vec![0.0; n],
+            den: vec![0.0; n],
+            stats: MergeStats::default(),
+        }
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        self.num.len() * 8
+    }
+
+    /// The merged AO: Σ SSAO·w / Σ w, or the point's own SSAO (counted) where Σ w = 0.
+    pub fn finish(self, own: &[f32]) -> (Vec<f32>, MergeStats) {
+        let mut st = self.stats;
+        let out = self
+            .num
+            .iter()
+            .zip(&self.den)
+            .zip(own)
+            .map(|((&n, &d), &o)| {
+                if d > 0.0 && n.is_finite() {
+                    (n / d).clamp(0.0, 1.0)
+                } else {
+                    st.zero_weight += 1;
+                    o
+                }
+            })
+            .collect();
+        (out, st)
+    }
+}
+
+/// The scan being merged: its points (local frame), radii, pixel of each point in its own
+/// map, pose and projection.
+#[derive(Debug, Clone, Copy)]
+pub struct Target<'a> {
+    /// Index of the scan among the views (its own view is read at `own_pixel`).
+    pub index: usize,
+    /// Local points.
+    pub points: &'a [Vec3],
+    /// rad(p) per point.
+    pub radii: &'a [f32],
+    /// Pixel of each point in its own map ([`EMPTY`] if outside).
+    pub own_pixel: &'a [u32],
+    /// Local → world.
+    pub pose: DMat4,
+    /// Its sensor model (the scanner position `b` of eq. 7).
+    pub proj: &'a Projection,
+}
+
+/// Adds view `j` to the sums of `t` (eq. 6–12 for one view), in parallel over points.
+pub fn accumulate(
+    acc: &mut Accum,
+    t: &Target<'_>,
+    j: usize,
+    v: &View<'_>,
+    prm: &MergeParams,
+    progress: &(dyn Fn(u64) + Sync),
+) {
+    let half = (prm.neighbors.max(1) / 2) as i64;
+    let relm = v.pose.inverse() * t.pose;
+    let rel = Affine3A::from_mat4(relm.as_mat4());
+    let b = (relm * t.proj.sensor_homogeneous().as_dvec4()).as_vec4();
+    const CHUNK: usize = 8192;
+    let g = v.gbuf;
+    let use_wd = v.proj.sensor_model() != crate::projection::SensorModel::Ortho;
+    let st = acc
+        .num
+        .par_chunks_mut(CHUNK)
+        .zip(acc.den.par_chunks_mut(CHUNK))
+        .enumerate()
+        .map(|(ci, (num, den))| {
+            let base = ci * CHUNK;
+            let mut st = MergeStats::default();
+            for k in 0..num.len() {
+                let pi = base + k;
+                let (q, cx, cy) = if j == t.index {
+                    let px = t.own_pixel[pi];
+                    if px == EMPTY {
+                        continue;
+                    }
+                    let w = g.width.max(1);
+                    (
+                        t.points[pi],
+                        (px as usize % w) as i64,
+                        (px as usize / w) as i64,
+                    )
+                } else {
+                    let q: Vec3 = rel.transform_point3a(Vec3A::from(t.points[pi])).into();
+                    let Some(pr) = v.proj.project(q) else {
+                        continue;
+                    };
+                    (q, floor_i64(pr.x), floor_i64(pr.y))
+                };
+                st.point_views += 1;
+                let rad_i = t.radii[pi];
+                for dy in -half..=half {
+                    for dx in -half..=half {
+                        let Some(idx) = v.proj.pixel_at(cx + dx, cy + dy) else {
+                            continue;
+                        };
+                        if g.point[idx] == EMPTY {
+                            continue;
+                        }
+                        let p_ij = g.position[idx];
+                        let n_ij = g.normal[idx];
+                        let rad_ij = g.radius[idx];
+                        if !corresponds(q, p_ij, n_ij, rad_i, rad_ij, b) {
+                            continue;
+                        }
+                        let wd = if use_wd {
+                            w_distance(g.depth[idx], prm.dmin, prm.dmax)
+                        } else {
+                            1.0
+                        };
+                        let w = wd
+                            * w_normal(n_ij, v.proj.toward_sensor(p_ij))
+                            * w_border(v.border[idx], prm.border_px, rad_i, rad_ij);
+                        st.samples_kept += 1;
+                        num[k] += v.ao[idx] * w;
+                        den[k] += w;
+                    }
+                }
+            }
+            progress(num.len() as u64);
+            st
+        })
+        .reduce(MergeStats::default, |mut a, b| {
+            a += b;
+            a
+        });
+    acc.stats += st;
+}
+
+/// Merges scan `i` (its local `points`, `radii`, own SSAO `own` and own pixels) against every
+/// view not marked in `skip`: eq. 8 with the weights of eq. 9–12. Views are visited in index
+/// order, so the result equals adding them one by one with [`accumulate`].
 #[allow(clippy::too_many_arguments)]
 pub fn merge_scan(
     i: usize,
@@ -80,103 +225,23 @@ pub fn merge_scan(
     prm: &MergeParams,
     progress: &(dyn Fn(u64) + Sync),
 ) -> (Vec<f32>, MergeStats) {
-    let half = (prm.neighbors.max(1) / 2) as i64;
-    let pose_i = views[i].pose;
-    let pairs: Vec<(usize, Affine3A, glam::Vec4)> = views
-        .iter()
-        .enumerate()
-        .filter(|(j, _)| !skip.get(*j).copied().unwrap_or(false))
-        .map(|(j, v)| {
-            // Scan i local → scan j local, composed in f64, rounded to f32 once per pair.
-            let relm = v.pose.inverse() * pose_i;
-            let rel = Affine3A::from_mat4(relm.as_mat4());
-            let b = (relm * views[i].proj.sensor_homogeneous().as_dvec4()).as_vec4();
-            (j, rel, b)
-        })
-        .collect();
-    const CHUNK: usize = 8192;
-    let mut out = vec![0.0f32; points.len()];
-    let stats = out
-        .par_chunks_mut(CHUNK)
-        .enumerate()
-        .map(|(ci, res)| {
-            let base = ci * CHUNK;
-            let n = res.len();
-            let mut num = vec![0.0f32; n];
-            let mut den = vec![0.0f32; n];
-            let mut st = MergeStats::default();
-            for &(j, rel, b) in &pairs {
-                let v = &views[j];
-                let g = v.gbuf;
-                // An orthographic view's resolution does not fall with depth: no w_d.
-                let use_wd = v.proj.sensor_model() != crate::projection::SensorModel::Ortho;
-                for k in 0..n {
-                    let pi = base + k;
-                    let (q, cx, cy) = if j == i {
-                        let px = own_pixel[pi];
-                        if px == EMPTY {
-                            continue;
-                        }
-                        let w = g.width.max(1);
-                        (
-                            points[pi],
-                            (px as usize % w) as i64,
-                            (px as usize / w) as i64,
-                        )
-                    } else {
-                        let q: Vec3 = rel.transform_point3a(Vec3A::from(points[pi])).into();
-                        let Some(pr) = v.proj.project(q) else {
-                            continue;
-                        };
-                        (q, floor_i64(pr.x), floor_i64(pr.y))
-                    };
-                    st.point_views += 1;
-                    let rad_i = radii[pi];
-                    for dy in -half..=half {
-                        for dx in -half..=half {
-                            let Some(idx) = v.proj.pixel_at(cx + dx, cy + dy) else {
-                                continue;
-                            };
-                            if g.point[idx] == EMPTY {
-                                continue;
-                            }
-                            let p_ij = g.position[idx];
-                            let n_ij = g.normal[idx];
-                            let rad_ij = g.radius[idx];
-                            if !corresponds(q, p_ij, n_ij, rad_i, rad_ij, b) {
-                                continue;
-                            }
-                            let wd = if use_wd {
-                                w_distance(g.depth[idx], prm.dmin, prm.dmax)
-                            } else {
-                                1.0
-                            };
-                            let w = wd
-                                * w_normal(n_ij, v.proj.toward_sensor(p_ij))
-                                * w_border(v.border[idx], prm.border_px, rad_i, rad_ij);
-                            st.samples_kept += 1;
-                            num[k] += v.ao[idx] * w;
-                            den[k] += w;
-                        }
-                    }
-                }
-            }
-            for k in 0..n {
-                res[k] = if den[k] > 0.0 && num[k].is_finite() {
-                    (num[k] / den[k]).clamp(0.0, 1.0)
-                } else {
-                    st.zero_weight += 1;
-                    own[base + k]
-                };
-            }
-            progress(n as u64);
-            st
-        })
-        .reduce(MergeStats::default, |mut a, b| {
-            a += b;
-            a
-        });
-    (out, stats)
+    let t = Target {
+        index: i,
+        points,
+        radii,
+        own_pixel,
+        pose: views[i].pose,
+        proj: views[i].proj,
+    };
+    let mut acc = Accum::new(points.len());
+    for (j, v) in views.iter().enumerate() {
+        if !skip.get(j).copied().unwrap_or(false) {
+            accumulate(&mut acc, &t, j, v, prm, &|_| {});
+        }
+    }
+    let r = acc.finish(own);
+    progress(points.len() as u64);
+    r
 }
 
 #[cfg(test)]
