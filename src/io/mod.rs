@@ -7,5 +7,6 @@ pub mod e57_file;
 pub mod output;
 pub mod ply;
 mod ply_retain;
+pub mod ptx;
 pub mod raw;
 pub mod scan_ply;
