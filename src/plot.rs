@@ -247,7 +247,13 @@ mod tests {
 
     #[test]
     fn pareto_front_keeps_only_undominated_points() {
-        let pts = [p(1.0, 0.5), p(2.0, 0.3), p(3.0, 0.4), p(0.5, 0.9), p(4.0, 0.1)];
+        let pts = [
+            p(1.0, 0.5),
+            p(2.0, 0.3),
+            p(3.0, 0.4),
+            p(0.5, 0.9),
+            p(4.0, 0.1),
+        ];
         assert_eq!(pareto_front(&pts), vec![3, 0, 1, 4]);
         assert!(pareto_front(&[p(f64::NAN, 0.1)]).is_empty());
     }

@@ -34,6 +34,35 @@ where
     }
 }
 
+/// Like [`write_atomic`], for writers that seek and read back what they wrote (E57 pages):
+/// `fill` gets the temporary file itself, opened for reading and writing.
+pub fn write_atomic_seekable<F>(path: &Path, fill: F) -> Result<()>
+where
+    F: FnOnce(&mut File) -> std::io::Result<()>,
+{
+    let tmp = temp_path(path);
+    let res = (|| {
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&tmp)?;
+        fill(&mut file)?;
+        file.sync_all()
+    })();
+    match res {
+        Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            Error::io(path, e)
+        }),
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(Error::io(path, e))
+        }
+    }
+}
+
 /// The temporary name used while `path` is being written (`.name.tmp-<pid>` beside it).
 pub fn temp_path(path: &Path) -> PathBuf {
     let name = path
@@ -58,6 +87,26 @@ mod tests {
         assert!(r.is_err());
         assert!(!p.exists());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+
+    #[test]
+    fn seekable_write_reads_back_and_fails_cleanly() {
+        use std::io::{Read, Seek, SeekFrom};
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.e57");
+        write_atomic_seekable(&p, |f| {
+            f.write_all(b"abcdef")?;
+            f.seek(SeekFrom::Start(2))?;
+            let mut b = [0u8; 2];
+            f.read_exact(&mut b)?;
+            f.seek(SeekFrom::End(0))?;
+            f.write_all(&b)
+        })
+        .unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"abcdefcd");
+        let q = dir.path().join("y.e57");
+        assert!(write_atomic_seekable(&q, |_| Err(std::io::Error::other("boom"))).is_err());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
     #[test]

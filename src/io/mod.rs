@@ -4,9 +4,11 @@
 pub mod align;
 pub mod atomic;
 pub mod dataset;
+pub mod e57_file;
 pub mod output;
 pub mod ply;
 mod ply_retain;
+pub mod ptx;
 pub mod raw;
 pub mod results;
 pub mod scan_ply;

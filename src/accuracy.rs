@@ -1,0 +1,387 @@
+//! How good the AO is: the ray-traced reference of a dataset (`mvao reference`), its files,
+//! and the error metrics of a result against it (`merge --reference`, `mvao eval`).
+//!
+//! A reference directory holds `<scan>.ref.ply` per scan — the scan's valid points in input
+//! order with world `x y z`, the normal, `radius` and `ao` = the reference obscurance `A` —
+//! and `reference.json` with the parameters and the convergence report.
+
+use crate::error::{Error, Result};
+use crate::eval::{metrics_concat, Metrics};
+use crate::io::dataset::{Dataset, PlaceOptions};
+use crate::io::ply::{PlyFile, ScalarType};
+use crate::io::source::Container;
+use crate::reference::{self, Convergence, RefParams, Scene};
+use crate::scan::Scan;
+use crate::sensor::{self, ProjectionChoice};
+use glam::Vec3;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What the reference rays hit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Geometry {
+    /// Oriented disks of radius rad(p) at every point.
+    #[default]
+    Surfels,
+    /// Triangles: the input's faces, else its native grid triangulated, else surfels.
+    Mesh,
+}
+
+/// Everything `mvao reference` needs.
+#[derive(Debug, Clone)]
+pub struct RefConfig {
+    /// Input scans.
+    pub scans: Vec<PathBuf>,
+    /// Placement.
+    pub place: PlaceOptions,
+    /// Output directory.
+    pub out_dir: PathBuf,
+    /// Rays, t_max, seed.
+    pub params: RefParams,
+    /// Geometry the rays hit.
+    pub geometry: Geometry,
+    /// Points in the convergence sample of each scan.
+    pub sample: usize,
+    /// Sensor model choice (orients estimated normals).
+    pub projection: ProjectionChoice,
+    /// Overwrite existing outputs.
+    pub force: bool,
+}
+
+/// Per-scan part of `reference.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct RefScan {
+    /// Scan name.
+    pub name: String,
+    /// Points (valid ones).
+    pub points: usize,
+    /// Mean reference A.
+    pub mean_a: f64,
+    /// |A_R − A_4R| on a sample, and the timing of the main run.
+    pub convergence: Convergence,
+}
+
+/// `reference.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct RefReport {
+    /// mvao version.
+    pub version: String,
+    /// Rays, t_max (null = ∞), seed.
+    pub params: RefParams,
+    /// Geometry the rays hit.
+    pub geometry: Geometry,
+    /// Surfels in the scene.
+    pub surfels: usize,
+    /// Triangles in the scene.
+    pub triangles: usize,
+    /// Per scan.
+    pub scans: Vec<RefScan>,
+    /// Rays per second over all scans' main runs.
+    pub rays_per_second: f64,
+    /// Seconds spent building the BVH.
+    pub build_s: f64,
+    /// Wall time of the whole command.
+    pub wall_s: f64,
+}
+
+/// The reference file of scan `name` in `dir`.
+pub fn reference_path(dir: &Path, name: &str) -> PathBuf {
+    dir.join(format!("{name}.ref.ply"))
+}
+
+/// Triangles of scan `s` from its PLY faces (fans over polygons, indices remapped to the
+/// valid points), else from its native grid; `None` when it has neither.
+fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
+    let Container::Ply(ply) = container else {
+        return Ok(s
+            .grid
+            .as_ref()
+            .map(|g| reference::triangulate_grid(&s.points, g))
+            .transpose()?);
+    };
+    if let Some(faces) = ply.list_column("face", "vertex_indices") {
+        let mut remap = vec![u32::MAX; s.vertex_count];
+        for (k, &vi) in s.source_index.iter().enumerate() {
+            remap[vi as usize] = k as u32;
+        }
+        let mut tris = Vec::with_capacity(faces.len());
+        for f in &faces {
+            let idx: Vec<u32> = f
+                .iter()
+                .map(|&v| remap.get(v as usize).copied().unwrap_or(u32::MAX))
+                .collect();
+            if idx.len() < 3 || idx.contains(&u32::MAX) {
+                continue;
+            }
+            for k in 1..idx.len() - 1 {
+                tris.push([idx[0], idx[k], idx[k + 1]]);
+            }
+        }
+        return Ok(Some(tris));
+    }
+    Ok(s
+        .grid
+        .as_ref()
+        .map(|g| reference::triangulate_grid(&s.points, g))
+        .transpose()?)
+}
+
+/// `mvao reference`: the reference obscurance of every point of every scan, cast against all
+/// scans together; writes `<scan>.ref.ply` and `reference.json` into `cfg.out_dir`.
+pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result<RefReport> {
+    let t_all = Instant::now();
+    let ds = Dataset::open(&cfg.scans, &cfg.place, &|| {})?;
+    let outs: Vec<PathBuf> = ds
+        .scans
+        .iter()
+        .map(|s| reference_path(&cfg.out_dir, &s.name))
+        .chain([cfg.out_dir.join("reference.json")])
+        .collect();
+    for o in &outs {
+        if o.exists() && !cfg.force {
+            return Err(Error::Param(format!(
+                "{}: exists; use --force to overwrite or choose another -o",
+                o.display()
+            )));
+        }
+    }
+    let frame = ds.scans[0].pose;
+    let mut b = Scene::builder(frame);
+    let mut geo = Vec::with_capacity(ds.scans.len());
+    for (i, s) in ds.scans.iter().enumerate() {
+        let setup = sensor::setup(s, cfg.projection)?;
+        let (normals, radii, _) = crate::pipeline::scan_normals(s, &setup);
+        let mesh = match cfg.geometry {
+            Geometry::Surfels => None,
+            Geometry::Mesh => mesh_of(s, &ds.files[ds.origin[i].0].container)?,
+        };
+        match &mesh {
+            Some(t) if !t.is_empty() => {
+                b.add_triangles(&s.name, s.pose, &s.points, t)?;
+            }
+            _ => {
+                b.add_surfels(&s.name, s.pose, &s.points, &normals, &radii)?;
+            }
+        }
+        geo.push((normals, radii));
+    }
+    let t0 = Instant::now();
+    let scene = b.build();
+    let build_s = t0.elapsed().as_secs_f64();
+    std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
+    let mut scans = Vec::with_capacity(ds.scans.len());
+    let (mut rays, mut secs) = (0u64, 0.0f64);
+    for (s, (normals, radii)) in ds.scans.iter().zip(&geo) {
+        let (pts, nrm) = scene.to_frame(s.pose, &s.points, normals)?;
+        let r = reference::reference(&scene, &pts, &nrm, radii, &cfg.params, cfg.sample, progress)?;
+        rays += r.convergence.rays_cast;
+        secs += r.convergence.seconds;
+        write_reference_ply(&reference_path(&cfg.out_dir, &s.name), s, normals, radii, &r.a)?;
+        scans.push(RefScan {
+            name: s.name.clone(),
+            points: s.len(),
+            mean_a: r.a.iter().map(|&v| v as f64).sum::<f64>() / s.len().max(1) as f64,
+            convergence: r.convergence,
+        });
+    }
+    let report = RefReport {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        params: cfg.params,
+        geometry: cfg.geometry,
+        surfels: scene.surfel_count(),
+        triangles: scene.triangle_count(),
+        scans,
+        rays_per_second: if secs > 0.0 { rays as f64 / secs } else { 0.0 },
+        build_s,
+        wall_s: t_all.elapsed().as_secs_f64(),
+    };
+    let json = serde_json::to_vec_pretty(&report)
+        .map_err(|e| Error::Param(format!("cannot encode the reference report: {e}")))?;
+    crate::io::atomic::write_atomic(&cfg.out_dir.join("reference.json"), |w| {
+        std::io::Write::write_all(w, &json)
+    })?;
+    Ok(report)
+}
+
+/// Writes one scan's reference: world x y z, normal, radius and `ao` = A.
+pub fn write_reference_ply(
+    path: &Path,
+    s: &Scan,
+    normals: &[Vec3],
+    radii: &[f32],
+    a: &[f32],
+) -> Result<()> {
+    let world: Vec<[f64; 3]> = s
+        .points
+        .iter()
+        .map(|p| s.pose.transform_point3(p.as_dvec3()).to_array())
+        .collect();
+    let col = |k: usize| world.iter().map(|p| p[k]).collect::<Vec<f64>>();
+    let ncol = |k: usize| normals.iter().map(|n| n[k] as f64).collect::<Vec<f64>>();
+    let (x, y, z) = (col(0), col(1), col(2));
+    let (nx, ny, nz) = (ncol(0), ncol(1), ncol(2));
+    let r: Vec<f64> = radii.iter().map(|&v| v as f64).collect();
+    let ao: Vec<f64> = a
+        .iter()
+        .map(|&v| if v.is_finite() { v.clamp(0.0, 1.0) as f64 } else { 1.0 })
+        .collect();
+    let ply = PlyFile::from_vertex_columns(
+        &[
+            ("x", ScalarType::F64, &x),
+            ("y", ScalarType::F64, &y),
+            ("z", ScalarType::F64, &z),
+            ("nx", ScalarType::F32, &nx),
+            ("ny", ScalarType::F32, &ny),
+            ("nz", ScalarType::F32, &nz),
+            ("radius", ScalarType::F32, &r),
+            ("ao", ScalarType::F32, &ao),
+        ],
+        &[format!(
+            "mvao {} reference obscurance of scan {}",
+            env!("CARGO_PKG_VERSION"),
+            s.name
+        )],
+    )?;
+    ply.write_path(path)
+}
+
+/// Reads the `ao` column of a PLY file (a result or a reference).
+pub fn read_ao(path: &Path) -> Result<Vec<f32>> {
+    let ply = PlyFile::read_path(path)?;
+    let v = ply
+        .scalar_column("vertex", "ao")
+        .ok_or_else(|| Error::format(path, "has no per-vertex 'ao' property"))?;
+    Ok(v.iter().map(|&x| x as f32).collect())
+}
+
+/// The references of `scans` from `dir`, checked against their point counts.
+pub fn load_reference(dir: &Path, scans: &[Scan]) -> Result<Vec<Vec<f32>>> {
+    scans
+        .iter()
+        .map(|s| {
+            let p = reference_path(dir, &s.name);
+            if !p.is_file() {
+                return Err(Error::Param(format!(
+                    "{}: no reference for scan '{}' (run `mvao reference` on the same scans)",
+                    p.display(),
+                    s.name
+                )));
+            }
+            let a = read_ao(&p)?;
+            if a.len() != s.len() {
+                return Err(Error::format(
+                    &p,
+                    format!(
+                        "holds {} points but scan '{}' has {}: not the reference of this scan",
+                        a.len(),
+                        s.name,
+                        s.len()
+                    ),
+                ));
+            }
+            Ok(a)
+        })
+        .collect()
+}
+
+/// Metrics of one scan.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanAccuracy {
+    /// Scan name.
+    pub name: String,
+    /// Single-view SSAO against the reference (absent for `mvao eval`).
+    pub ssao: Option<Metrics>,
+    /// The result against the reference.
+    pub result: Metrics,
+}
+
+/// Accuracy of a run against a reference.
+#[derive(Debug, Clone, Serialize)]
+pub struct Accuracy {
+    /// The reference directory.
+    pub reference: String,
+    /// Per scan.
+    pub scans: Vec<ScanAccuracy>,
+    /// All single-view SSAO values together.
+    pub ssao: Option<Metrics>,
+    /// All result values together.
+    pub result: Metrics,
+}
+
+/// Metrics of the result (and optionally the single-view SSAO) of every scan.
+pub fn evaluate(
+    reference_dir: &Path,
+    names: &[String],
+    ssao: Option<&[Vec<f32>]>,
+    result: &[Vec<f32>],
+    refs: &[Vec<f32>],
+) -> Accuracy {
+    let scans = names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| ScanAccuracy {
+            name: n.clone(),
+            ssao: ssao.map(|s| metrics_concat(&[(&s[i], &refs[i])])),
+            result: metrics_concat(&[(&result[i], &refs[i])]),
+        })
+        .collect();
+    let pairs = |v: &[Vec<f32>]| -> Metrics {
+        let parts: Vec<(&[f32], &[f32])> = v
+            .iter()
+            .zip(refs)
+            .map(|(a, r)| (a.as_slice(), r.as_slice()))
+            .collect();
+        metrics_concat(&parts)
+    };
+    Accuracy {
+        reference: reference_dir.display().to_string(),
+        scans,
+        ssao: ssao.map(pairs),
+        result: pairs(result),
+    }
+}
+
+/// `mvao eval`: result files (any PLY with a per-vertex `ao`, named `<scan>.<anything>.ply`)
+/// against the reference directory, matched by scan name.
+pub fn eval_files(reference_dir: &Path, results: &[PathBuf]) -> Result<Accuracy> {
+    if results.is_empty() {
+        return Err(Error::Param("no result file given".into()));
+    }
+    let mut names = Vec::with_capacity(results.len());
+    let mut vals = Vec::with_capacity(results.len());
+    let mut refs = Vec::with_capacity(results.len());
+    for p in results {
+        let file = p
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let name = file.split('.').next().unwrap_or("").to_string();
+        let rp = reference_path(reference_dir, &name);
+        if !rp.is_file() {
+            return Err(Error::Param(format!(
+                "{}: no reference {} for scan '{name}'",
+                p.display(),
+                rp.display()
+            )));
+        }
+        let a = read_ao(p)?;
+        let r = read_ao(&rp)?;
+        if a.len() != r.len() {
+            return Err(Error::format(
+                p,
+                format!(
+                    "{} points, but the reference {} has {}",
+                    a.len(),
+                    rp.display(),
+                    r.len()
+                ),
+            ));
+        }
+        names.push(name);
+        vals.push(a);
+        refs.push(r);
+    }
+    Ok(evaluate(reference_dir, &names, None, &vals, &refs))
+}
