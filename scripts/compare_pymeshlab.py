@@ -85,6 +85,8 @@ FILTER = "compute_scalar_ambient_occlusion"
 DEFAULT_DIRS = 64
 EDGE_FACTOR = 4.0
 FILL_CELLS = 4
+# Largest grid (cells) triangulated: its cell table takes 8 bytes a cell.
+MAX_GRID_CELLS = 1 << 28
 # Columns of the row appended with --csv. The sweep's CSV shares this list.
 CSV_COLUMNS = ("label", "estimator", "dirs", "wall_s", "filter_s", "points")
 ALIGN_EXTENSIONS = (".conf", ".mlp", ".json")
@@ -637,6 +639,8 @@ def triangulate_grid(scan, factor):
     """Two triangles per full 2x2 block of cells, one per block with three points; drops
     triangles across depth jumps; winds every triangle to face the sensor."""
     rows, cols, row, col = scan.grid
+    if rows * cols > MAX_GRID_CELLS:
+        raise Failure(scan.path, f"grid of {rows} x {cols} cells is too large to triangulate")
     cell = np.full((rows, cols), -1, np.int64)
     have = np.nonzero(scan.finite & (row >= 0))[0][::-1]  # reversed: the first vertex wins
     cell[row[have], col[have]] = have
