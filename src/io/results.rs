@@ -150,6 +150,18 @@ pub fn write(
                     &unit.path,
                 )
             }
+            Container::E57(e) => {
+                let per_record: Vec<Vec<f32>> = unit
+                    .scans
+                    .iter()
+                    .map(|&i| per_record(ds, i, &ao[i]))
+                    .collect();
+                super::e57_file::write_e57(e, &per_record, opts.gamma, opts.color, &unit.path)
+            }
+            Container::Ptx(_) => Err(Error::Param(format!(
+                "{}: PTX is read, not written",
+                unit.path.display()
+            ))),
         }
     } else {
         let tables: Vec<PointTable> = unit
@@ -159,6 +171,7 @@ pub fn write(
             .collect::<Result<_>>()?;
         match unit.format {
             Format::Ply => write_table_ply(&tables[0], comment, &unit.path),
+            Format::E57 => super::e57_file::write_table_e57(&tables, &unit.path),
             f => Err(Error::Param(format!(
                 "{}: writing {f} is not supported by this build",
                 unit.path.display()
@@ -173,12 +186,26 @@ pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Resul
     let (fi, _) = ds.origin[i];
     let file = &ds.files[fi];
     let m = ds.file_to_world[i];
+    let k = ds.origin[i].1;
+    let t = match &file.container {
+        Container::E57(e) => {
+            Some(e.point_table(k, &per_record(ds, i, ao), opts.gamma, opts.color)?)
+        }
+        Container::Ptx(p) => {
+            Some(p.point_table(k, &per_record(ds, i, ao), opts.gamma, opts.color)?)
+        }
+        Container::Ply(_) => None,
+    };
+    if let Some(t) = t {
+        return Ok(valid_rows(t, &s.source_index, m));
+    }
     // World coordinates from the file's own f64 coordinates and the exact f64 placement.
     let (orig, (in_rgb, intensity, extra)) = match &file.container {
         Container::Ply(ply) => (
             ply.vertex_xyz().unwrap_or_default(),
             ply_attributes(ply, &s.source_index),
         ),
+        _ => unreachable_attrs(),
     };
     let xyz: Vec<[f64; 3]> = s
         .source_index
@@ -206,6 +233,54 @@ pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Resul
         grid,
         extra,
     })
+}
+
+/// Never reached: non-PLY containers return above.
+fn unreachable_attrs() -> (Vec<[f64; 3]>, Attributes) {
+    (Vec::new(), (None, None, Vec::new()))
+}
+
+/// AO per record of scan `i` (1 for records without a valid point).
+fn per_record(ds: &Dataset, i: usize, ao: &[f32]) -> Vec<f32> {
+    let s = &ds.scans[i];
+    let mut v = vec![1.0f32; s.vertex_count];
+    for (k, &r) in s.source_index.iter().enumerate() {
+        v[r as usize] = ao[k];
+    }
+    v
+}
+
+/// The rows of a per-record table that hold valid points, in world coordinates (`m`: the
+/// table's coordinates → world).
+fn valid_rows(t: PointTable, index: &[u32], m: glam::DMat4) -> PointTable {
+    let pick = |k: &u32| *k as usize;
+    PointTable {
+        name: t.name,
+        xyz: index
+            .iter()
+            .map(|k| {
+                m.transform_point3(DVec3::from_array(t.xyz[pick(k)]))
+                    .to_array()
+            })
+            .collect(),
+        pose: glam::DMat4::IDENTITY,
+        rgb: t.rgb.map(|c| index.iter().map(|k| c[pick(k)]).collect()),
+        intensity: t
+            .intensity
+            .map(|c| index.iter().map(|k| c[pick(k)]).collect()),
+        ao: index.iter().map(|k| t.ao[pick(k)]).collect(),
+        grid: t.grid.map(|g| RawGrid {
+            rows: g.rows,
+            cols: g.cols,
+            row: index.iter().map(|k| g.row[pick(k)]).collect(),
+            col: index.iter().map(|k| g.col[pick(k)]).collect(),
+        }),
+        extra: t
+            .extra
+            .into_iter()
+            .map(|(n, v)| (n, index.iter().map(|k| v[pick(k)]).collect()))
+            .collect(),
+    }
 }
 
 /// Output colours from the input's (if any) and the AO, as [`ColorMode`] says.

@@ -90,12 +90,39 @@ impl std::fmt::Display for Format {
 pub enum Container {
     /// A PLY file.
     Ply(Box<PlyFile>),
+    /// An E57 file.
+    E57(Box<super::e57_file::E57Input>),
+    /// A PTX file.
+    Ptx(Box<super::ptx::PtxInput>),
 }
 
 impl Container {
     /// Names of the per-point attributes of scan `k` of the file.
-    pub fn attributes(&self, _k: usize) -> Vec<String> {
+    pub fn attributes(&self, k: usize) -> Vec<String> {
         match self {
+            Container::E57(e) => e
+                .scans
+                .get(k)
+                .map(|s| {
+                    s.descriptor
+                        .prototype
+                        .iter()
+                        .map(|r| super::e57_file::record_label(&r.name))
+                        .collect()
+                })
+                .unwrap_or_default(),
+            Container::Ptx(p) => p
+                .scans
+                .get(k)
+                .map(|s| {
+                    let mut v: Vec<String> =
+                        ["x", "y", "z", "intensity"].map(String::from).to_vec();
+                    if s.rgb.is_some() {
+                        v.extend(["red", "green", "blue"].map(String::from));
+                    }
+                    v
+                })
+                .unwrap_or_default(),
             Container::Ply(p) => p
                 .element("vertex")
                 .map(|e| {
@@ -147,11 +174,51 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
                 file_to_local: vec![off],
             })
         }
+        Format::E57 => {
+            let e = super::e57_file::read_e57(path)?;
+            let (scans, offs) = scans_of(e.raw_scans(), path)?;
+            Ok(InputFile {
+                path: path.to_path_buf(),
+                format,
+                container: Container::E57(Box::new(e)),
+                scans,
+                file_to_local: offs,
+            })
+        }
+        Format::Ptx => {
+            let p = super::ptx::read_ptx(path)?;
+            let (scans, offs) = scans_of(p.raw_scans(), path)?;
+            Ok(InputFile {
+                path: path.to_path_buf(),
+                format,
+                container: Container::Ptx(Box::new(p)),
+                scans,
+                file_to_local: offs,
+            })
+        }
         f => Err(Error::format(
             path,
             format!("{f} input is not supported by this build"),
         )),
     }
+}
+
+/// The scans of a multi-scan container; every pose the file gives must be rigid.
+fn scans_of(raws: Vec<RawScan>, path: &Path) -> Result<(Vec<Scan>, Vec<DVec3>)> {
+    let mut scans = Vec::with_capacity(raws.len());
+    let mut offs = Vec::with_capacity(raws.len());
+    for mut r in raws {
+        if let Some(m) = r.pose {
+            r.pose = Some(
+                super::align::check_rigid(m, path, &r.name)
+                    .map_err(|e| Error::format(path, format!("scan {}: {e}", r.name)))?,
+            );
+        }
+        let (s, o) = scan_from_raw(r, path)?;
+        scans.push(s);
+        offs.push(o);
+    }
+    Ok((scans, offs))
 }
 
 /// Coordinates beyond this (metres) lose millimetres in f32, so the scan is re-centred.
