@@ -3,8 +3,9 @@
 
 pub mod align;
 pub mod atomic;
+pub mod las_file;
 pub mod output;
 pub mod ply;
-pub mod raw;
 mod ply_retain;
+pub mod raw;
 pub mod scan_ply;
