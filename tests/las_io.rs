@@ -8,6 +8,7 @@ use mvao::io::las_file::{read_ao, read_las, write_las, write_table_las};
 use mvao::io::output::{grey, ColorMode};
 use mvao::io::raw::PointTable;
 use mvao::Error;
+use rayon::prelude::*;
 use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
@@ -165,7 +166,11 @@ fn transforms() -> Vector<Transform> {
 
 /// Writes `spec` as a LAS/LAZ file at `path` with the `las` crate; returns its records.
 fn make_las(path: &Path, spec: &Spec) -> Vec<u8> {
-    let recs = records(spec);
+    make_las_from(path, spec, records(spec))
+}
+
+/// Writes `recs` (of `spec`'s layout) as a LAS/LAZ file at `path`.
+fn make_las_from(path: &Path, spec: &Spec, recs: Vec<u8>) -> Vec<u8> {
     let mut b = Builder::from(spec.version);
     let mut format = Format::new(spec.format).unwrap();
     format.extra_bytes = spec.extra_len() as u16;
@@ -560,6 +565,49 @@ fn internal_waveform_packets_stay_addressable() {
 }
 
 #[test]
+fn las13_waveform_packets_move_into_a_las14_evlr() {
+    let dir = tempfile::tempdir().unwrap();
+    let inp = dir.path().join("wave13.las");
+    let spec = Spec::new((1, 3), 4);
+    let recs = make_las(&inp, &spec);
+    // LAS 1.3 stores the packets after the points, behind an EVLR header.
+    let mut bytes = std::fs::read(&inp).unwrap();
+    let start = bytes.len() as u64;
+    let packets: Vec<u8> = (0..300).map(|i| (i % 251) as u8).collect();
+    let mut head = vec![0u8; 60];
+    head[2..11].copy_from_slice(b"LASF_Spec");
+    head[18..20].copy_from_slice(&65535u16.to_le_bytes());
+    head[20..28].copy_from_slice(&(packets.len() as u64).to_le_bytes());
+    bytes.extend(head);
+    bytes.extend(&packets);
+    bytes[227..235].copy_from_slice(&start.to_le_bytes());
+    bytes[6] |= 2;
+    std::fs::write(&inp, &bytes).unwrap();
+
+    let input = read_las(&inp).unwrap();
+    assert_eq!(input.records(), &recs[..]);
+    assert_eq!(input.evlrs().len(), 1);
+    let out = dir.path().join("wave13.out.las");
+    write_las(
+        &input,
+        &ao_values(spec.n),
+        1.0,
+        ColorMode::Keep,
+        &out,
+        false,
+    )
+    .unwrap();
+    let o = std::fs::read(&out).unwrap();
+    assert_eq!((o[24], o[25], o[104]), (1, 4, 5), "LAS 1.4, format 5");
+    assert_eq!(o[6] & 6, 2);
+    let at = header_u64(&o, 227) as usize;
+    assert_eq!(at as u64, header_u64(&o, 235));
+    assert_eq!(&o[at + 2..at + 11], b"LASF_Spec");
+    assert_eq!(&o[at + 60..at + 360], &packets[..]);
+    assert_eq!(read_ao(&out).unwrap(), ao_values(spec.n));
+}
+
+#[test]
 fn legacy_counts_are_zero_for_extended_formats() {
     let dir = tempfile::tempdir().unwrap();
     let inp = dir.path().join("ext.las");
@@ -614,6 +662,56 @@ fn raw_scan_and_available_fields() {
     }
     let z = read_las(&p).unwrap();
     assert!(z.point_source_ids().is_none() && z.scan_angles().is_none());
+}
+
+#[test]
+fn columns_for_other_formats() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut spec = Spec::new((1, 4), 7);
+    spec.dims = vec![dim("reflectance", 9), dim("ao", 9)];
+    let inp = dir.path().join("cols.las");
+    let recs = make_las(&inp, &spec);
+    let input = read_las(&inp).unwrap();
+    let len = input.record_len();
+    let inten = input.intensities();
+    let cols = input.extra_columns();
+    assert_eq!(cols.len(), 1, "ao is not an extra column");
+    assert_eq!(cols[0].0, "reflectance");
+    let rgb = input.rgb8().unwrap();
+    for (k, r) in recs.chunks_exact(len).enumerate() {
+        assert_eq!(inten[k], u16_at(r, 12) as f32 / 65535.0);
+        let refl = f32::from_le_bytes(r[36..40].try_into().unwrap());
+        assert_eq!(cols[0].1[k], refl as f64);
+        // Random 16-bit colours: the high byte.
+        assert_eq!(
+            rgb[k],
+            [0, 1, 2].map(|c| (u16_at(r, 30 + 2 * c) >> 8) as u8)
+        );
+    }
+    // Colours that all fit in 8 bits are taken as 8-bit.
+    let mut small = recs.clone();
+    for r in small.chunks_exact_mut(len) {
+        for c in 0..3 {
+            r[31 + 2 * c] = 0;
+        }
+    }
+    let p = dir.path().join("cols8.las");
+    make_las_from(&p, &spec, small.clone());
+    let rgb = read_las(&p).unwrap().rgb8().unwrap();
+    for (k, r) in small.chunks_exact(len).enumerate() {
+        assert_eq!(rgb[k], [r[30], r[32], r[34]]);
+    }
+    assert!(read_las(&dir.path().join("cols.las"))
+        .unwrap()
+        .ao()
+        .is_some());
+    let mut plain = Spec::new((1, 2), 1);
+    plain.n = 4;
+    let q = dir.path().join("plain.las");
+    make_las(&q, &plain);
+    let plain = read_las(&q).unwrap();
+    assert!(plain.rgb8().is_none() && plain.ao().is_none() && plain.extra_columns().is_empty());
+    assert!(read_ao(&q).is_err());
 }
 
 /// A valid file's bytes, for corrupting.
@@ -966,7 +1064,22 @@ fn python_readers_see_ao() {
     let mut spec14 = Spec::new((1, 4), 7);
     spec14.evlrs = true;
     let out14 = round_trip(dir.path(), &spec14, ColorMode::Keep, 1.0, "las");
-    let mut files = vec![out, out14];
+    let table = PointTable {
+        name: "t".into(),
+        xyz: (0..50).map(|k| [k as f64, 0.5 * k as f64, 1.0]).collect(),
+        pose: DMat4::from_translation(DVec3::new(512000.0, 5200000.0, 300.0)),
+        rgb: Some(vec![[10, 20, 30]; 50]),
+        intensity: Some(vec![0.5; 50]),
+        ao: ao_values(50),
+        grid: None,
+        extra: vec![("range".into(), vec![2.0; 50])],
+    };
+    let out_table = dir.path().join("table.las");
+    write_table_las(&table, &out_table, false).unwrap();
+    let mut wave = Spec::new((1, 3), 4);
+    wave.dims = vec![dim("reflectance", 9)];
+    let out_wave = round_trip(dir.path(), &wave, ColorMode::Modulate, 1.0, "las");
+    let mut files = vec![out, out14, out_table, out_wave];
     let has_lazrs = std::process::Command::new("python3")
         .args(["-c", "import laspy; laspy.LazBackend.detect_available()[0]"])
         .output()
@@ -1004,8 +1117,29 @@ fn speed() {
     spec.n = 5_000_000;
     spec.dims = vec![dim("reflectance", 9)];
     let inp = dir.path().join("big.las");
+    // A scan-like sweep: neighbouring points close in space, time, intensity and colour,
+    // as the LAZ coder expects (random bytes would be its worst case).
+    let len = 34;
+    let mut recs = vec![0u8; spec.n * len];
+    recs.par_chunks_exact_mut(len)
+        .enumerate()
+        .for_each(|(k, r)| {
+            let (row, col) = ((k / 2000) as f64, (k % 2000) as f64);
+            let x = (col * 5.0) as i32;
+            let y = (row * 5.0) as i32;
+            let z = (1000.0 * (col * 0.01).sin() * (row * 0.02).cos()) as i32;
+            r[0..4].copy_from_slice(&x.to_le_bytes());
+            r[4..8].copy_from_slice(&y.to_le_bytes());
+            r[8..12].copy_from_slice(&z.to_le_bytes());
+            r[12..14].copy_from_slice(&((20000 + z * 10) as u16).to_le_bytes());
+            r[14] = 0x09;
+            r[16] = 2;
+            r[20..22].copy_from_slice(&1u16.to_le_bytes());
+            r[22..30].copy_from_slice(&(1.0e8 + k as f64 * 1e-5).to_le_bytes());
+            r[30..34].copy_from_slice(&(0.5f32 + z as f32 * 1e-4).to_le_bytes());
+        });
     let t = std::time::Instant::now();
-    make_las(&inp, &spec);
+    make_las_from(&inp, &spec, recs);
     println!("generate {} points: {:?}", spec.n, t.elapsed());
     let t = std::time::Instant::now();
     let input = read_las(&inp).unwrap();

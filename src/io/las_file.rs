@@ -281,6 +281,52 @@ impl LasInput {
         angles.iter().any(|&a| a != 0.0).then_some(angles)
     }
 
+    /// Intensity of every record scaled to [0, 1] (the 16-bit value / 65535), for a
+    /// [`PointTable`] when writing another format.
+    pub fn intensities(&self) -> Vec<f32> {
+        self.records
+            .par_chunks_exact(self.record_len)
+            .map(|r| u16::from_le_bytes([r[12], r[13]]) as f32 / 65535.0)
+            .collect()
+    }
+
+    /// RGB of every record in 8 bits, when the format has colour. Files whose values all fit
+    /// in 0–255 stored 8-bit colour in the 16-bit fields (a common habit) and are taken as
+    /// they are; otherwise the high byte is kept.
+    pub fn rgb8(&self) -> Option<Vec<[u8; 3]>> {
+        let at = rgb_offset(self.format_id)?;
+        let rgb16: Vec<[u16; 3]> = self
+            .records
+            .par_chunks_exact(self.record_len)
+            .map(|r| [0, 1, 2].map(|c| u16::from_le_bytes([r[at + 2 * c], r[at + 2 * c + 1]])))
+            .collect();
+        let wide = rgb16.par_iter().any(|c| c.iter().any(|&v| v > 255));
+        let shift = if wide { 8 } else { 0 };
+        Some(
+            rgb16
+                .iter()
+                .map(|c| c.map(|v| (v >> shift) as u8))
+                .collect(),
+        )
+    }
+
+    /// Every scalar extra dimension (types 1–10, scale and offset applied) as a named column,
+    /// `ao` excluded, for [`PointTable::extra`] when writing another format.
+    pub fn extra_columns(&self) -> Vec<(String, Vec<f64>)> {
+        self.extra
+            .iter()
+            .filter(|d| (1..=10).contains(&d.data_type) && d.name != AO_NAME)
+            .map(|d| {
+                let values = self
+                    .records
+                    .par_chunks_exact(self.record_len)
+                    .map(|r| d.value(r).unwrap_or(f64::NAN))
+                    .collect();
+                (d.name.clone(), values)
+            })
+            .collect()
+    }
+
     /// The `ao` values of every record, when the file has an `ao` extra dimension.
     pub fn ao(&self) -> Option<Vec<f32>> {
         let dim = self.extra.iter().find(|d| d.name == AO_NAME)?;
