@@ -34,23 +34,24 @@ where
     }
 }
 
-/// Like [`write_atomic`], for writers that seek and read back what they wrote (E57 pages):
-/// `fill` gets the temporary file itself, opened for reading and writing.
-pub fn write_atomic_seekable<F>(path: &Path, fill: F) -> Result<()>
+/// Writes `path` atomically through the temporary [`File`] itself, for formats that seek back
+/// to complete a header after the data (LAS/LAZ). `fill` gets the open temporary file and hands
+/// it back when done; it is then synced and renamed over `path`. On error the temporary file is
+/// removed and `fill`'s error is returned unchanged, so it should already name `path`.
+pub fn write_atomic_file<F>(path: &Path, fill: F) -> Result<()>
 where
-    F: FnOnce(&mut File) -> std::io::Result<()>,
+    F: FnOnce(File) -> Result<File>,
 {
     let tmp = temp_path(path);
-    let res = (|| {
-        let mut file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(true)
-            .open(&tmp)?;
-        fill(&mut file)?;
-        file.sync_all()
-    })();
+    // Readable too: LAS writers read header fields back while completing them.
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .open(&tmp)
+        .map_err(|e| Error::io(path, e))?;
+    let res = fill(file).and_then(|file| file.sync_all().map_err(|e| Error::io(path, e)));
     match res {
         Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
             let _ = std::fs::remove_file(&tmp);
@@ -58,9 +59,21 @@ where
         }),
         Err(e) => {
             let _ = std::fs::remove_file(&tmp);
-            Err(Error::io(path, e))
+            Err(e)
         }
     }
+}
+
+/// Like [`write_atomic`], for writers that seek and read back what they wrote (E57 pages):
+/// `fill` gets the temporary file itself, opened for reading and writing.
+pub fn write_atomic_seekable<F>(path: &Path, fill: F) -> Result<()>
+where
+    F: FnOnce(&mut File) -> std::io::Result<()>,
+{
+    write_atomic_file(path, |mut f| {
+        fill(&mut f).map_err(|e| Error::io(path, e))?;
+        Ok(f)
+    })
 }
 
 /// The temporary name used while `path` is being written (`.name.tmp-<pid>` beside it).
@@ -106,6 +119,29 @@ mod tests {
         assert_eq!(std::fs::read(&p).unwrap(), b"abcdefcd");
         let q = dir.path().join("y.e57");
         assert!(write_atomic_seekable(&q, |_| Err(std::io::Error::other("boom"))).is_err());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn seekable_write_patches_and_cleans_up() {
+        use std::io::{Seek, SeekFrom};
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.bin");
+        write_atomic_file(&p, |mut f| {
+            f.write_all(b"hello").map_err(|e| Error::io(&p, e))?;
+            f.seek(SeekFrom::Start(0)).map_err(|e| Error::io(&p, e))?;
+            f.write_all(b"J").map_err(|e| Error::io(&p, e))?;
+            Ok(f)
+        })
+        .unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"Jello");
+        let q = dir.path().join("y.bin");
+        let r = write_atomic_file(&q, |mut f| {
+            f.write_all(b"partial").unwrap();
+            Err(Error::Param("boom".into()))
+        });
+        assert!(matches!(r, Err(Error::Param(_))));
+        assert!(!q.exists());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 

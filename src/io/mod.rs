@@ -5,6 +5,7 @@ pub mod align;
 pub mod atomic;
 pub mod dataset;
 pub mod e57_file;
+pub mod las_file;
 pub mod output;
 pub mod ply;
 mod ply_retain;

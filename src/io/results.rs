@@ -162,6 +162,17 @@ pub fn write(
                 "{}: PTX is read, not written",
                 unit.path.display()
             ))),
+            Container::Las(l) => {
+                let i = unit.scans[0];
+                super::las_file::write_las(
+                    l,
+                    &per_record(ds, i, &ao[i]),
+                    opts.gamma,
+                    opts.color,
+                    &unit.path,
+                    unit.format == Format::Laz,
+                )
+            }
         }
     } else {
         let tables: Vec<PointTable> = unit
@@ -172,8 +183,11 @@ pub fn write(
         match unit.format {
             Format::Ply => write_table_ply(&tables[0], comment, &unit.path),
             Format::E57 => super::e57_file::write_table_e57(&tables, &unit.path),
-            f => Err(Error::Param(format!(
-                "{}: writing {f} is not supported by this build",
+            Format::Las | Format::Laz => {
+                super::las_file::write_table_las(&tables[0], &unit.path, unit.format == Format::Laz)
+            }
+            Format::Ptx => Err(Error::Param(format!(
+                "{}: PTX is read, not written",
                 unit.path.display()
             ))),
         }
@@ -194,7 +208,7 @@ pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Resul
         Container::Ptx(p) => {
             Some(p.point_table(k, &per_record(ds, i, ao), opts.gamma, opts.color)?)
         }
-        Container::Ply(_) => None,
+        Container::Ply(_) | Container::Las(_) => None,
     };
     if let Some(t) = t {
         return Ok(valid_rows(t, &s.source_index, m));
@@ -205,6 +219,20 @@ pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Resul
             ply.vertex_xyz().unwrap_or_default(),
             ply_attributes(ply, &s.source_index),
         ),
+        Container::Las(l) => {
+            let pick = |i: &u32| *i as usize;
+            let rgb = l
+                .rgb8()
+                .map(|c| s.source_index.iter().map(|i| c[pick(i)]).collect());
+            let inten = l.intensities();
+            let intensity = Some(s.source_index.iter().map(|i| inten[pick(i)]).collect());
+            let extra = l
+                .extra_columns()
+                .into_iter()
+                .map(|(n, v)| (n, s.source_index.iter().map(|i| v[pick(i)]).collect()))
+                .collect();
+            (l.raw_scan(&s.name).xyz, (rgb, intensity, extra))
+        }
         _ => unreachable_attrs(),
     };
     let xyz: Vec<[f64; 3]> = s

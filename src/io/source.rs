@@ -94,12 +94,35 @@ pub enum Container {
     E57(Box<super::e57_file::E57Input>),
     /// A PTX file.
     Ptx(Box<super::ptx::PtxInput>),
+    /// A LAS or LAZ file.
+    Las(Box<super::las_file::LasInput>),
 }
 
 impl Container {
     /// Names of the per-point attributes of scan `k` of the file.
     pub fn attributes(&self, k: usize) -> Vec<String> {
         match self {
+            Container::Las(l) => {
+                let mut v: Vec<String> = [
+                    "x",
+                    "y",
+                    "z",
+                    "intensity",
+                    "return_number",
+                    "number_of_returns",
+                    "classification",
+                    "scan_angle",
+                    "user_data",
+                    "point_source_id",
+                ]
+                .map(String::from)
+                .to_vec();
+                if l.has_color() {
+                    v.extend(["red", "green", "blue"].map(String::from));
+                }
+                v.extend(l.extra_dims().iter().map(|d| d.name.clone()));
+                v
+            }
             Container::E57(e) => e
                 .scans
                 .get(k)
@@ -174,6 +197,17 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
                 file_to_local: vec![off],
             })
         }
+        Format::Las | Format::Laz => {
+            let l = super::las_file::read_las(path)?;
+            let (scan, off) = scan_from_raw(l.raw_scan(&stem), path)?;
+            Ok(InputFile {
+                path: path.to_path_buf(),
+                format,
+                container: Container::Las(Box::new(l)),
+                scans: vec![scan],
+                file_to_local: vec![off],
+            })
+        }
         Format::E57 => {
             let e = super::e57_file::read_e57(path)?;
             let (scans, offs) = scans_of(e.raw_scans(), path)?;
@@ -196,10 +230,6 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
                 file_to_local: offs,
             })
         }
-        f => Err(Error::format(
-            path,
-            format!("{f} input is not supported by this build"),
-        )),
     }
 }
 
