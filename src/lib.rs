@@ -40,11 +40,13 @@
 
 pub mod cli;
 pub mod error;
+pub mod eval;
 pub mod gbuffer;
 pub mod io;
 pub mod merge;
 pub mod pipeline;
 pub mod projection;
+pub mod reference;
 pub mod report;
 pub mod scan;
 pub mod sensor;
