@@ -39,7 +39,9 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod cli;
+pub mod accuracy;
 pub mod error;
+pub mod eval;
 pub mod gbuffer;
 pub mod info;
 pub mod io;
@@ -47,10 +49,12 @@ pub mod merge;
 pub mod pipeline;
 pub mod plot;
 pub mod projection;
+pub mod reference;
 pub mod report;
 pub mod scan;
 pub mod sensor;
 pub mod ssao;
+pub mod sweep;
 pub mod synth;
 pub mod work;
 

@@ -1,0 +1,102 @@
+//! Reference ray-casting throughput on the synthetic room (three 1440×720 equirect stations,
+//! ≈1M points each, 2 mm range noise, exact normals, radii from the native grid): all
+//! three scans as surfels in one scene, query points = every `STEP`-th point of station 0.
+//! `cargo bench --bench reference` prints build time and rays/s for t_max = 0.4 m and ∞.
+//! `MVAO_BENCH_STEP=1` traces every point of station 0.
+
+use mvao::projection::SensorModel;
+use mvao::reference::{self, RefParams, Scene};
+use mvao::scan::normals;
+use mvao::synth::{scan_scene, station_layout, SceneKind};
+use std::time::Instant;
+
+/// CPU seconds used by this process so far (user + system), from `/proc/self/stat`; the
+/// machine is shared, so rays per CPU-second is steadier than rays per wall-second.
+fn cpu_seconds() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the parenthesised command name; utime and stime are the 12th and 13th.
+    let rest = s.rsplit_once(')').map_or("", |x| x.1);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |k: usize| f.get(k).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
+fn main() {
+    let step: usize = std::env::var("MVAO_BENCH_STEP")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(10);
+    let (w, h) = (1440, 720);
+    let stations = station_layout(SceneKind::Room, SensorModel::Equirect, 3, w, h);
+    let room = SceneKind::Room.scene();
+    let scans: Vec<_> = stations
+        .iter()
+        .enumerate()
+        .map(|(i, st)| {
+            let mut s = scan_scene(&room, st, 0.002, i as u64, &format!("s{i}"));
+            s.pose = st.pose();
+            s
+        })
+        .collect();
+    let radii: Vec<Vec<f32>> = scans
+        .iter()
+        .map(|s| {
+            let g = s.grid.as_ref().expect("synthetic scans are gridded");
+            normals::estimate_grid(&s.points, g, false, |p| -p.normalize_or_zero()).1
+        })
+        .collect();
+    let t = Instant::now();
+    let mut b = Scene::builder(scans[0].pose);
+    for (s, r) in scans.iter().zip(&radii) {
+        let n = s.normals.as_ref().expect("synthetic scans have normals");
+        b.add_surfels(&s.name, s.pose, &s.points, n, r)
+            .expect("surfels");
+    }
+    let scene = b.build();
+    println!(
+        "room, 3 equirect stations {w}x{h}: {} surfels, BVH build {:.2} s, {:.0} MB",
+        scene.surfel_count(),
+        t.elapsed().as_secs_f64(),
+        scene.bytes() as f64 / 1e6
+    );
+    let s0 = &scans[0];
+    let n0 = s0.normals.as_ref().expect("normals");
+    let idx: Vec<usize> = (0..s0.len()).step_by(step).collect();
+    let pts: Vec<_> = idx.iter().map(|&i| s0.points[i]).collect();
+    let nrm: Vec<_> = idx.iter().map(|&i| n0[i]).collect();
+    let rad: Vec<_> = idx.iter().map(|&i| radii[0][i]).collect();
+    println!(
+        "query: every {step}th point of station 0 = {} points",
+        pts.len()
+    );
+    for (tmax, rays) in [(0.4f32, 64u32), (f32::INFINITY, 64)] {
+        let prm = RefParams {
+            rays,
+            tmax,
+            seed: 1,
+        };
+        let cpu0 = cpu_seconds();
+        let r =
+            reference::reference(&scene, &pts, &nrm, &rad, &prm, 0, &|_| {}).expect("reference");
+        let cpu = cpu_seconds() - cpu0;
+        let conv = reference::convergence(&scene, &pts, &nrm, &rad, &prm, 2000).expect("conv");
+        let c = &r.convergence;
+        println!(
+            "  cpu {cpu:.2} s = {:.2} M rays per cpu-second",
+            c.rays_cast as f64 / cpu.max(1e-9) / 1e6
+        );
+        let mean = r.a.iter().map(|&x| x as f64).sum::<f64>() / r.a.len().max(1) as f64;
+        println!(
+            "t_max={tmax:>4}, {rays} rays/point: {:.2} s, {:.2} M rays/s, mean A {:.4}; \
+             |A_R - A_4R| mean {:.4} max {:.4} (sample {})",
+            c.seconds,
+            c.rays_per_second / 1e6,
+            mean,
+            conv.mean_abs_diff_4r,
+            conv.max_abs_diff_4r,
+            conv.sample
+        );
+    }
+}

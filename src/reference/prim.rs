@@ -1,0 +1,148 @@
+//! The two primitive kinds of the reference scene and their ray tests.
+
+use super::bvh::{Primitive, Ray};
+use glam::Vec3;
+
+/// A hit on a surfel's back side (the ray leaves through the disk along its normal) closer
+/// than `BACK_NEAR · (rad(p) + rad(q))` is taken as the query point's own surface: on a
+/// convex or noisy surface a neighbour's tangent disk overhangs the query point, and the
+/// overlapping surfels of other scans of the same surface lie a little above or below it.
+/// See the module documentation of `reference` for the measured bias.
+pub(crate) const BACK_NEAR: f32 = 2.0;
+
+/// An oriented disk (32 bytes).
+#[derive(Debug, Clone, Copy)]
+#[repr(C)]
+pub(crate) struct Surfel {
+    pub c: Vec3,
+    pub r2: f32,
+    pub n: Vec3,
+    pub r: f32,
+}
+
+impl Primitive for Surfel {
+    #[inline]
+    fn bounds(&self) -> (Vec3, Vec3) {
+        // Exact box of a disk: half-extent along axis k is r·sqrt(1 − n_k²).
+        let e = (Vec3::ONE - self.n * self.n).max(Vec3::ZERO).map(f32::sqrt) * self.r;
+        (self.c - e, self.c + e)
+    }
+
+    #[inline(always)]
+    fn hit(&self, ray: &Ray, t_hi: f32) -> Option<f32> {
+        let denom = ray.d.dot(self.n);
+        // A ray parallel to the disk gives ±inf or NaN, rejected by the range test.
+        let t = (self.c - ray.o).dot(self.n) / denom;
+        if !(t > 0.0 && t < t_hi) {
+            return None;
+        }
+        let q = ray.o + ray.d * t - self.c;
+        if q.length_squared() > self.r2 {
+            return None;
+        }
+        if denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r) {
+            return None;
+        }
+        Some(t)
+    }
+
+    #[inline]
+    fn above(&self, o: Vec3, n: Vec3) -> bool {
+        let c = n.dot(self.n);
+        n.dot(self.c - o) + self.r * (1.0 - c * c).max(0.0).sqrt() > 0.0
+    }
+}
+
+/// A triangle `v0 + s·e1 + q·e2` (36 bytes), hit from either side.
+#[derive(Debug, Clone, Copy)]
+#[repr(C)]
+pub(crate) struct Triangle {
+    pub v0: Vec3,
+    pub e1: Vec3,
+    pub e2: Vec3,
+}
+
+impl Primitive for Triangle {
+    #[inline]
+    fn bounds(&self) -> (Vec3, Vec3) {
+        let (a, b, c) = (self.v0, self.v0 + self.e1, self.v0 + self.e2);
+        (a.min(b).min(c), a.max(b).max(c))
+    }
+
+    #[inline(always)]
+    fn hit(&self, ray: &Ray, t_hi: f32) -> Option<f32> {
+        // Möller–Trumbore.
+        let p = ray.d.cross(self.e2);
+        let det = self.e1.dot(p);
+        if det == 0.0 || !det.is_finite() {
+            return None;
+        }
+        let inv = 1.0 / det;
+        let s = ray.o - self.v0;
+        let u = s.dot(p) * inv;
+        if !(0.0..=1.0).contains(&u) {
+            return None;
+        }
+        let q = s.cross(self.e1);
+        let v = ray.d.dot(q) * inv;
+        if !(v >= 0.0 && u + v <= 1.0) {
+            return None;
+        }
+        let t = self.e2.dot(q) * inv;
+        (t > 0.0 && t < t_hi).then_some(t)
+    }
+
+    #[inline]
+    fn above(&self, o: Vec3, n: Vec3) -> bool {
+        let a = n.dot(self.v0 - o);
+        a > 0.0 || a + n.dot(self.e1) > 0.0 || a + n.dot(self.e2) > 0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn surfel_hits_inside_and_skips_outside_and_near_back() {
+        let s = Surfel {
+            c: Vec3::new(0.0, 0.0, 1.0),
+            r2: 0.25,
+            n: Vec3::NEG_Z,
+            r: 0.5,
+        };
+        let up = Ray::new(Vec3::ZERO, Vec3::Z, 0.0);
+        assert_eq!(s.hit(&up, 10.0), Some(1.0));
+        assert_eq!(s.hit(&up, 0.5), None);
+        let off = Ray::new(Vec3::new(0.6, 0.0, 0.0), Vec3::Z, 0.0);
+        assert_eq!(s.hit(&off, 10.0), None);
+        // Same disk seen from its back: within 2·(r_p + r_q) = 2·(0.1 + 0.5) it is ignored.
+        let back = Surfel { n: Vec3::Z, ..s };
+        assert_eq!(back.hit(&Ray::new(Vec3::ZERO, Vec3::Z, 0.1), 10.0), None);
+        let far = Surfel {
+            c: Vec3::new(0.0, 0.0, 2.0),
+            ..back
+        };
+        assert_eq!(
+            far.hit(&Ray::new(Vec3::ZERO, Vec3::Z, 0.1), 10.0),
+            Some(2.0)
+        );
+        let (lo, hi) = s.bounds();
+        assert_eq!(lo, Vec3::new(-0.5, -0.5, 1.0));
+        assert_eq!(hi, Vec3::new(0.5, 0.5, 1.0));
+    }
+
+    #[test]
+    fn triangle_hits_both_sides() {
+        let t = Triangle {
+            v0: Vec3::new(-1.0, -1.0, 2.0),
+            e1: Vec3::new(3.0, 0.0, 0.0),
+            e2: Vec3::new(0.0, 3.0, 0.0),
+        };
+        assert_eq!(t.hit(&Ray::new(Vec3::ZERO, Vec3::Z, 0.0), 9.0), Some(2.0));
+        let from_above = Ray::new(Vec3::new(0.0, 0.0, 5.0), Vec3::NEG_Z, 0.0);
+        assert_eq!(t.hit(&from_above, 9.0), Some(3.0));
+        let miss = Ray::new(Vec3::new(1.5, 1.5, 0.0), Vec3::Z, 0.0);
+        assert_eq!(t.hit(&miss, 9.0), None);
+    }
+}
