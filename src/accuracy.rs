@@ -121,8 +121,7 @@ fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
         }
         return Ok(Some(tris));
     }
-    Ok(s
-        .grid
+    Ok(s.grid
         .as_ref()
         .map(|g| reference::triangulate_grid(&s.points, g))
         .transpose()?)
@@ -178,7 +177,13 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         let r = reference::reference(&scene, &pts, &nrm, radii, &cfg.params, cfg.sample, progress)?;
         rays += r.convergence.rays_cast;
         secs += r.convergence.seconds;
-        write_reference_ply(&reference_path(&cfg.out_dir, &s.name), s, normals, radii, &r.a)?;
+        write_reference_ply(
+            &reference_path(&cfg.out_dir, &s.name),
+            s,
+            normals,
+            radii,
+            &r.a,
+        )?;
         scans.push(RefScan {
             name: s.name.clone(),
             points: s.len(),
@@ -225,7 +230,13 @@ pub fn write_reference_ply(
     let r: Vec<f64> = radii.iter().map(|&v| v as f64).collect();
     let ao: Vec<f64> = a
         .iter()
-        .map(|&v| if v.is_finite() { v.clamp(0.0, 1.0) as f64 } else { 1.0 })
+        .map(|&v| {
+            if v.is_finite() {
+                v.clamp(0.0, 1.0) as f64
+            } else {
+                1.0
+            }
+        })
         .collect();
     let ply = PlyFile::from_vertex_columns(
         &[

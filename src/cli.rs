@@ -1,10 +1,12 @@
 //! Command-line flags (what the user typed) and their check into a [`Config`]. Opens no files.
 
+use crate::accuracy::{Geometry, RefConfig};
 use crate::io::dataset::{PlaceOptions, PoseOverride};
 use crate::io::output::ColorMode;
 use crate::io::source::Format;
 use crate::pipeline::{ComputeParams, Config};
 use crate::projection::SensorModel;
+use crate::reference::RefParams;
 use crate::sensor::ProjectionChoice;
 use crate::ssao::Estimator;
 use crate::synth::{SceneKind, SynthOptions};
@@ -28,6 +30,14 @@ pub enum Command {
     /// Describe scan files: format, points, attributes, pose, grid, sensor model, bounds,
     /// overlaps.
     Info(InfoArgs),
+    /// Ray-traced reference obscurance of every point (the ground truth of `eval`).
+    Reference(ReferenceArgs),
+    /// Score result files against a reference directory.
+    Eval(EvalArgs),
+    /// Error against run time over a grid of settings: CSV and SVG plot.
+    Sweep(SweepArgs),
+    /// Plot a sweep CSV (e.g. after a script added rows).
+    Plot(PlotArgs),
     /// Write synthetic scans of an analytic scene (a virtual scanner) with an .mlp alignment.
     Synth(SynthArgs),
 }
@@ -84,7 +94,7 @@ pub struct MergeArgs {
     #[arg(long, value_enum, default_value_t = ProjectionChoice::Auto)]
     pub projection: ProjectionChoice,
     /// Per-view AO estimator.
-    #[arg(long, value_enum, default_value_t = Estimator::Paper)]
+    #[arg(long, value_enum, default_value_t = Estimator::Horizon)]
     pub estimator: Estimator,
     /// Write each scan's single-view SSAO instead of the multi-view merge.
     #[arg(long)]
@@ -104,6 +114,163 @@ pub struct MergeArgs {
     /// No progress bars or summary.
     #[arg(short, long)]
     pub quiet: bool,
+    /// Score the result and the single-view SSAO against this reference directory
+    /// (`mvao reference` on the same scans with the same t_max); metrics go to report.json.
+    #[arg(long, value_name = "DIR")]
+    pub reference: Option<PathBuf>,
+}
+
+/// Flags of `mvao reference`.
+#[derive(Debug, Args)]
+pub struct ReferenceArgs {
+    /// Input scans (as for `merge`).
+    #[arg(required = true)]
+    pub scans: Vec<PathBuf>,
+    /// How the scans are placed.
+    #[command(flatten)]
+    pub place: PlaceArgs,
+    /// Output directory (`<scan>.ref.ply` per scan and `reference.json`).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Rays per point.
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub rays: u32,
+    /// Falloff distance t_max of ρ in metres; `inf` = plain ambient occlusion. Use the same
+    /// value as the runs it will score.
+    #[arg(long)]
+    pub tmax: String,
+    /// What the rays hit.
+    #[arg(long, value_enum, default_value_t = Geometry::Surfels)]
+    pub geometry: Geometry,
+    /// Points per scan in the convergence check (R against 4R rays).
+    #[arg(long, default_value_t = 2000)]
+    pub sample: usize,
+    /// Seed of the ray directions.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Sensor model (orients estimated normals).
+    #[arg(long, value_enum, default_value_t = ProjectionChoice::Auto)]
+    pub projection: ProjectionChoice,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bar.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+impl ReferenceArgs {
+    /// Checks the values and turns them into a [`RefConfig`].
+    pub fn into_config(self) -> Result<RefConfig, String> {
+        let tmax = parse_tmax(&self.tmax)?;
+        Ok(RefConfig {
+            scans: self.scans,
+            place: self.place.options(),
+            out_dir: self.output,
+            params: RefParams {
+                rays: self.rays,
+                tmax,
+                seed: self.seed,
+            },
+            geometry: self.geometry,
+            sample: self.sample,
+            projection: self.projection,
+            force: self.force,
+        })
+    }
+}
+
+/// `--tmax`: a positive number of metres or `inf`.
+fn parse_tmax(s: &str) -> Result<f32, String> {
+    if matches!(s, "inf" | "infinity" | "Inf") {
+        return Ok(f32::INFINITY);
+    }
+    match s.parse::<f32>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!(
+            "--tmax must be a positive number of metres or 'inf', got '{s}'"
+        )),
+    }
+}
+
+/// Flags of `mvao eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Result files: PLY with a per-vertex `ao`, named `<scan>.<anything>.ply`.
+    #[arg(required = true)]
+    pub results: Vec<PathBuf>,
+    /// Reference directory.
+    #[arg(long, value_name = "DIR")]
+    pub reference: PathBuf,
+    /// Append a row to this sweep CSV.
+    #[arg(long, value_name = "FILE")]
+    pub csv: Option<PathBuf>,
+    /// `dataset` column of the CSV row.
+    #[arg(long, default_value = "")]
+    pub dataset: String,
+    /// `method` (and `estimator`) column of the CSV row, e.g. pymeshlab.
+    #[arg(long, default_value = "external")]
+    pub method: String,
+    /// `directions` column (the method's budget, e.g. rays per point).
+    #[arg(long, default_value_t = 0)]
+    pub directions: u32,
+    /// `wall_s` column: the method's run time in seconds.
+    #[arg(long, default_value_t = 0.0)]
+    pub wall_s: f64,
+    /// `tmax` column (inf for plain ambient occlusion).
+    #[arg(long, default_value = "inf")]
+    pub tmax: String,
+    /// Print JSON instead of one line per scan.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Flags of `mvao sweep`.
+#[derive(Debug, Args)]
+pub struct SweepArgs {
+    /// Input scans (as for `merge`).
+    #[arg(required = true)]
+    pub scans: Vec<PathBuf>,
+    /// How the scans are placed.
+    #[command(flatten)]
+    pub place: PlaceArgs,
+    /// Reference directory (`mvao reference` with the same t_max).
+    #[arg(long, value_name = "DIR")]
+    pub reference: PathBuf,
+    /// Output directory (`sweep.csv`, `sweep.svg`).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Name of the dataset in the CSV and plot title.
+    #[arg(long, default_value = "dataset")]
+    pub dataset: String,
+    /// SSAO radius in metres [default: robust scene diagonal / 50].
+    #[arg(long)]
+    pub radius: Option<f32>,
+    /// t_max in metres [default: 2 × radius]; must match the reference's.
+    #[arg(long)]
+    pub tmax: Option<f32>,
+    /// Seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Fewer settings (paper 16/32, horizon 4×4/8×8; N = 1, 3): a quick look.
+    #[arg(long)]
+    pub quick: bool,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Flags of `mvao plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// A sweep CSV (rows added by scripts included).
+    pub csv: PathBuf,
+    /// Output SVG [default: the CSV's name with .svg].
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Title.
+    #[arg(long, default_value = "e_A against wall time")]
+    pub title: String,
 }
 
 /// How scans are placed in world coordinates (shared by `merge`, `info`, `reference`).
@@ -216,6 +383,13 @@ pub struct SynthArgs {
     /// Output directory.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Also write the reference obscurance against the exact analytic geometry into
+    /// OUTPUT/reference-analytic/ with this many rays per point (needs --reference-tmax).
+    #[arg(long, value_name = "RAYS")]
+    pub reference_rays: Option<u32>,
+    /// t_max (metres, or inf) of the analytic reference.
+    #[arg(long, value_name = "T", default_value = "inf")]
+    pub reference_tmax: String,
 }
 
 impl SynthArgs {
@@ -233,6 +407,12 @@ impl SynthArgs {
             noise: self.noise,
             seed: self.seed,
             out_dir: self.output,
+            reference: self.reference_rays.map(|r| {
+                (
+                    r.max(1),
+                    parse_tmax(&self.reference_tmax).unwrap_or(f32::INFINITY),
+                )
+            }),
         }
     }
 }
@@ -291,6 +471,7 @@ impl MergeArgs {
             quiet: self.quiet,
             preview: !self.no_preview,
             force: self.force,
+            reference: self.reference,
         })
     }
 }

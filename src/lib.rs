@@ -38,8 +38,9 @@
 // Guards are written `!(x > 0.0)` on purpose: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-pub mod cli;
 pub mod accuracy;
+pub mod cli;
+pub mod commands;
 pub mod error;
 pub mod eval;
 pub mod gbuffer;

@@ -43,6 +43,8 @@ pub struct Config {
     pub preview: bool,
     /// Overwrite existing outputs.
     pub force: bool,
+    /// Reference directory to score the result against.
+    pub reference: Option<PathBuf>,
 }
 
 /// Parameters of the in-memory computation (no files).
@@ -92,7 +94,7 @@ impl Default for ComputeParams {
             border_px: 64.0,
             seed: 0,
             projection: ProjectionChoice::Auto,
-            estimator: Estimator::Paper,
+            estimator: Estimator::Horizon,
             blur: true,
             ssao_only: false,
         }
@@ -659,6 +661,10 @@ pub fn run(cfg: &Config) -> Result<Report> {
         }
     }
 
+    let refs = match &cfg.reference {
+        Some(d) => Some(crate::accuracy::load_reference(d, scans)?),
+        None => None,
+    };
     let prm = &cfg.compute;
     let t0 = Instant::now();
     let computed = compute(scans, prm, &obs)?;
@@ -775,6 +781,22 @@ pub fn run(cfg: &Config) -> Result<Report> {
         zero_merge_weight: report.scans.iter().map(|s| s.zero_merge_weight).sum(),
         wall_s: t_all.elapsed().as_secs_f64(),
     };
+    if let (Some(d), Some(refs)) = (&cfg.reference, &refs) {
+        let names: Vec<String> = scans.iter().map(|s| s.name.clone()).collect();
+        let ssao: Vec<Vec<f32>> = computed.scans.iter().map(|r| r.ssao.clone()).collect();
+        let acc = crate::accuracy::evaluate(d, &names, Some(&ssao), &aos, refs);
+        if !cfg.quiet {
+            if let Some(s) = &acc.ssao {
+                eprintln!("single-view SSAO vs reference: {}", s.one_line());
+            }
+            eprintln!(
+                "{} vs reference: {}",
+                if prm.ssao_only { "result" } else { "MVAO" },
+                acc.result.one_line()
+            );
+        }
+        report.accuracy = Some(acc);
+    }
     let json = serde_json::to_vec_pretty(&report)
         .map_err(|e| Error::Param(format!("cannot encode the report: {e}")))?;
     let rp = cfg.out_dir.join("report.json");

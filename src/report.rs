@@ -24,6 +24,9 @@ pub struct Report {
     pub totals: Totals,
     /// Warnings printed during the run.
     pub warnings: Vec<String>,
+    /// Error against a reference (`--reference`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accuracy: Option<crate::accuracy::Accuracy>,
 }
 
 /// Run parameters after defaults were filled in.

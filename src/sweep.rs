@@ -67,13 +67,17 @@ pub fn default_grid() -> Vec<Setting> {
             neighbors: n.clone(),
         })
         .collect();
-    g.extend([(4, 4), (8, 8), (16, 8), (16, 16)].iter().map(|&(d, k)| Setting {
-        estimator: Estimator::Horizon,
-        samples: 32,
-        directions: d,
-        steps: k,
-        neighbors: n.clone(),
-    }));
+    g.extend(
+        [(4, 4), (8, 8), (16, 8), (16, 16)]
+            .iter()
+            .map(|&(d, k)| Setting {
+                estimator: Estimator::Horizon,
+                samples: 32,
+                directions: d,
+                steps: k,
+                neighbors: n.clone(),
+            }),
+    );
     g
 }
 
@@ -198,7 +202,11 @@ pub fn run(cfg: &SweepConfig, progress: &dyn Fn(&str)) -> Result<Vec<Row>> {
         text += &csv_row(&cfg.dataset, r);
     }
     crate::io::atomic::write_atomic(&csv, |w| std::io::Write::write_all(w, text.as_bytes()))?;
-    plot_csv(&csv, &svg, &format!("{}: e_A against wall time", cfg.dataset))?;
+    plot_csv(
+        &csv,
+        &svg,
+        &format!("{}: e_A against wall time", cfg.dataset),
+    )?;
     Ok(rows)
 }
 

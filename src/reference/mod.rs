@@ -44,7 +44,7 @@
 mod bvh;
 mod grid;
 mod prim;
-mod sampling;
+pub(crate) mod sampling;
 
 pub use grid::{triangulate_grid, EDGE_RATIO};
 

@@ -12,6 +12,8 @@ mod rng;
 mod scanner;
 mod scene;
 
+pub mod reference;
+
 pub use output::{describe_station, write_scan_ply};
 pub use prim::Prim;
 pub use scanner::{scan_scene, Station};
@@ -88,6 +90,9 @@ pub struct SynthOptions {
     pub seed: u64,
     /// Output directory (created if missing).
     pub out_dir: PathBuf,
+    /// Also write the analytic reference obscurance of every point into
+    /// `out_dir/reference-analytic/`: (rays per point, t_max).
+    pub reference: Option<(u32, f32)>,
 }
 
 impl Default for SynthOptions {
@@ -102,6 +107,7 @@ impl Default for SynthOptions {
             noise: 0.002,
             seed: 1,
             out_dir: PathBuf::from("synth"),
+            reference: None,
         }
     }
 }
@@ -289,6 +295,20 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
             station: i,
             points: scan.len(),
         });
+        if let Some((rays, tmax)) = opts.reference {
+            let dir = opts.out_dir.join("reference-analytic");
+            std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+            let a = reference::analytic_obscurance(&scene, &scan, rays, tmax, 0);
+            let normals = scan.normals.clone().unwrap_or_default();
+            let radii = vec![0.0f32; scan.len()];
+            crate::accuracy::write_reference_ply(
+                &crate::accuracy::reference_path(&dir, &name),
+                &scan,
+                &normals,
+                &radii,
+                &a,
+            )?;
+        }
         entries.push(AlignEntry {
             file,
             pose: scan.pose,

@@ -1,0 +1,193 @@
+//! One function per subcommand: build the configuration from the flags, run the library,
+//! print the summary. The binary only parses flags and prints the error chain.
+
+use crate::cli::{Command, EvalArgs, PlotArgs, SweepArgs};
+use crate::pipeline::ComputeParams;
+use anyhow::Context as _;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::io::{IsTerminal as _, Write as _};
+
+/// Runs one subcommand.
+pub fn run(cmd: Command) -> anyhow::Result<()> {
+    match cmd {
+        Command::Merge(args) => {
+            let quiet = args.quiet;
+            let cfg = args.into_config().map_err(anyhow::Error::msg)?;
+            let report = crate::pipeline::run(&cfg)?;
+            if !quiet {
+                eprintln!(
+                    "{} scans, {} points in {:.2} s; {} without SSAO sample, {} with zero merge weight; results in {}",
+                    report.scans.len(),
+                    report.totals.points,
+                    report.totals.wall_s,
+                    report.totals.no_ssao_sample,
+                    report.totals.zero_merge_weight,
+                    cfg.out_dir.display()
+                );
+            }
+            Ok(())
+        }
+        Command::Info(args) => {
+            let info = crate::info::describe(&args.scans, &args.place.options(), args.projection)?;
+            if args.json {
+                println!("{}", serde_json::to_string_pretty(&info)?);
+            } else {
+                print!("{}", info.to_text());
+            }
+            Ok(())
+        }
+        Command::Reference(args) => {
+            let quiet = args.quiet;
+            let cfg = args.into_config().map_err(anyhow::Error::msg)?;
+            let bar = points_bar(quiet);
+            let rep = crate::accuracy::run_reference(&cfg, &|n| bar.inc(n))?;
+            bar.finish_and_clear();
+            if !quiet {
+                let worst = rep
+                    .scans
+                    .iter()
+                    .map(|s| s.convergence.mean_abs_diff_4r)
+                    .fold(0.0f32, f32::max);
+                eprintln!(
+                    "{} scans, {} surfels, {} triangles; {} rays per point at {:.2} M rays/s; \
+                     |A_R − A_4R| ≤ {worst:.4} (mean over a sample, worst scan); {:.1} s; in {}",
+                    rep.scans.len(),
+                    rep.surfels,
+                    rep.triangles,
+                    cfg.params.rays,
+                    rep.rays_per_second / 1e6,
+                    rep.wall_s,
+                    cfg.out_dir.display()
+                );
+            }
+            Ok(())
+        }
+        Command::Eval(args) => eval(args),
+        Command::Sweep(args) => sweep(args),
+        Command::Plot(args) => plot(args),
+        Command::Synth(args) => {
+            let opts = args.into_options();
+            let summary = crate::synth::run(&opts)?;
+            let points: usize = summary.files.iter().map(|f| f.points).sum();
+            eprintln!(
+                "{} {} scans of the {} scene ({} points) and {} written",
+                summary.files.len(),
+                summary.model,
+                summary.scene,
+                points,
+                summary.alignment.display()
+            );
+            Ok(())
+        }
+    }
+}
+
+/// A progress bar counting points on stderr (hidden when quiet or not a terminal).
+fn points_bar(quiet: bool) -> ProgressBar {
+    if quiet || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
+    pb.set_style(
+        ProgressStyle::with_template("{spinner} {human_pos} points {elapsed_precise} {per_sec}")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    pb
+}
+
+fn eval(args: EvalArgs) -> anyhow::Result<()> {
+    let acc = crate::accuracy::eval_files(&args.reference, &args.results)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&acc)?);
+    } else {
+        for s in &acc.scans {
+            println!("{}: {}", s.name, s.result.one_line());
+        }
+        println!("all: {}", acc.result.one_line());
+    }
+    if let Some(csv) = &args.csv {
+        let points: usize = acc.result.n;
+        let m = &acc.result;
+        let f = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v:.6}"));
+        let row = format!(
+            "{},{},{},0,{},0,0,,{},{},{:.4},{:.6},{:.6},{:.6},{},{:.6},{},{},{},{}\n",
+            args.dataset,
+            args.method,
+            args.method,
+            args.directions,
+            args.tmax,
+            points,
+            args.wall_s,
+            m.e_a,
+            m.e_lt5,
+            m.rmse,
+            f(m.pearson_r),
+            m.bias,
+            m.shaded_n,
+            f(m.shaded_e_a),
+            f(m.skill),
+            f(m.shaded_skill),
+        );
+        let new = !csv.exists();
+        let mut file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(csv)
+            .with_context(|| format!("{}: cannot open for appending", csv.display()))?;
+        if new {
+            writeln!(file, "{}", crate::sweep::CSV_COLUMNS.join(","))?;
+        }
+        file.write_all(row.as_bytes())
+            .with_context(|| format!("{}: cannot append", csv.display()))?;
+    }
+    Ok(())
+}
+
+fn sweep(args: SweepArgs) -> anyhow::Result<()> {
+    let mut grid = crate::sweep::default_grid();
+    if args.quick {
+        grid.retain(|s| {
+            matches!(
+                (s.estimator, s.samples, s.directions, s.steps),
+                (crate::ssao::Estimator::Paper, 16 | 32, _, _)
+                    | (crate::ssao::Estimator::Horizon, _, 4, 4)
+                    | (crate::ssao::Estimator::Horizon, _, 8, 8)
+            )
+        });
+        for s in &mut grid {
+            s.neighbors = vec![1, 3];
+        }
+    }
+    let cfg = crate::sweep::SweepConfig {
+        dataset: args.dataset,
+        scans: args.scans,
+        place: args.place.options(),
+        reference: args.reference,
+        out_dir: args.output,
+        base: ComputeParams {
+            radius: args.radius,
+            tmax: args.tmax,
+            seed: args.seed,
+            ..ComputeParams::default()
+        },
+        grid,
+        force: args.force,
+    };
+    let rows = crate::sweep::run(&cfg, &|line| eprintln!("{line}"))?;
+    eprintln!(
+        "{} rows: {} and {}",
+        rows.len(),
+        cfg.out_dir.join("sweep.csv").display(),
+        cfg.out_dir.join("sweep.svg").display()
+    );
+    Ok(())
+}
+
+fn plot(args: PlotArgs) -> anyhow::Result<()> {
+    let out = args
+        .output
+        .unwrap_or_else(|| args.csv.with_extension("svg"));
+    crate::sweep::plot_csv(&args.csv, &out, &args.title)?;
+    eprintln!("{}", out.display());
+    Ok(())
+}
