@@ -111,9 +111,9 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         let f = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v:.6}"));
         let row = format!(
             "{},{},{},0,{},0,0,,{},{},{:.4},{:.6},{:.6},{:.6},{},{:.6},{},{},{},{}\n",
-            args.dataset,
-            args.method,
-            args.method,
+            crate::sweep::csv_field(&args.dataset),
+            crate::sweep::csv_field(&args.method),
+            crate::sweep::csv_field(&args.method),
             args.directions,
             args.tmax,
             points,

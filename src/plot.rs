@@ -80,8 +80,28 @@ pub fn render_svg(title: &str, y_name: &str, points: &[PlotPoint]) -> String {
     x1 = x1.ceil().max(x0 + 1.0);
     let y1 = good.iter().fold(0.0f64, |a, p| a.max(p.error)) * 1.1;
     let y1 = if y1 > 0.0 { y1 } else { 1.0 };
+    // Errors spanning more than a decade and a half go on a log axis, so good settings are
+    // not squashed against zero by a poor one.
+    let ymin = good
+        .iter()
+        .map(|p| p.error)
+        .filter(|&e| e > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let log_y = ymin.is_finite() && y1 / ymin > 30.0;
+    let (ly0, ly1) = if log_y {
+        ((ymin / 1.5).log10().floor(), y1.log10().ceil())
+    } else {
+        (0.0, 1.0)
+    };
     let sx = |s: f64| l + (s.log10() - x0) / (x1 - x0) * pw;
-    let sy = |e: f64| t + ph - e / y1 * ph;
+    let sy = |e: f64| {
+        if log_y {
+            let v = e.max(10f64.powf(ly0)).log10();
+            t + ph - (v - ly0) / (ly1 - ly0) * ph
+        } else {
+            t + ph - e / y1 * ph
+        }
+    };
     let mut o = String::new();
     let _ = writeln!(
         o,
@@ -126,15 +146,35 @@ pub fn render_svg(title: &str, y_name: &str, points: &[PlotPoint]) -> String {
         }
         d += 1.0;
     }
-    for k in 0..=5 {
-        let e = y1 * k as f64 / 5.0;
+    let ticks: Vec<f64> = if log_y {
+        let mut v = Vec::new();
+        let mut d = ly0;
+        while d <= ly1 + 1e-9 {
+            for m in [1.0, 2.0, 5.0] {
+                let e = 10f64.powf(d) * m;
+                if e.log10() <= ly1 + 1e-9 {
+                    v.push(e);
+                }
+            }
+            d += 1.0;
+        }
+        v
+    } else {
+        (0..=5).map(|k| y1 * k as f64 / 5.0).collect()
+    };
+    for e in ticks {
         let y = sy(e);
         let _ = writeln!(
             o,
-            r##"<line x1="{l}" y1="{y:.1}" x2="{}" y2="{y:.1}" stroke="#eee"/><text x="{}" y="{:.1}" text-anchor="end">{e:.3}</text>"##,
+            r##"<line x1="{l}" y1="{y:.1}" x2="{}" y2="{y:.1}" stroke="#eee"/><text x="{}" y="{:.1}" text-anchor="end">{}</text>"##,
             l + pw,
             l - 6.0,
-            y + 4.0
+            y + 4.0,
+            if e >= 0.01 || e == 0.0 {
+                format!("{e:.3}")
+            } else {
+                format!("{e:.0e}")
+            }
         );
     }
     let _ = writeln!(
@@ -145,10 +185,11 @@ pub fn render_svg(title: &str, y_name: &str, points: &[PlotPoint]) -> String {
     );
     let _ = writeln!(
         o,
-        r#"<text x="20" y="{}" text-anchor="middle" transform="rotate(-90 20 {})">{}</text>"#,
+        r#"<text x="20" y="{}" text-anchor="middle" transform="rotate(-90 20 {})">{}{}</text>"#,
         t + ph / 2.0,
         t + ph / 2.0,
-        esc(y_name)
+        esc(y_name),
+        if log_y { " (log scale)" } else { "" }
     );
     // Pareto front.
     let front = pareto_front(points);

@@ -222,7 +222,13 @@ fn opt(x: Option<f64>) -> String {
     x.map_or(String::new(), |v| format!("{v:.6}"))
 }
 
+/// A CSV field without separators or quotes (names are free text).
+pub fn csv_field(s: &str) -> String {
+    s.replace([',', '"', '\n', '\r'], " ")
+}
+
 fn csv_row(dataset: &str, r: &Row) -> String {
+    let dataset = csv_field(dataset);
     let m = &r.metrics;
     let mut s = String::new();
     let _ = writeln!(
