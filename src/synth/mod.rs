@@ -436,9 +436,19 @@ mod tests {
             noise: 0.001,
             seed: 9,
             out_dir: dir.path().join("synth"),
+            reference: Some((16, 0.5)),
         };
         let sum = run(&opts).unwrap();
         assert_eq!(sum.files.len(), 3);
+        // The analytic reference: one file per station, A in [0, 1].
+        for i in 0..3 {
+            let p = dir
+                .path()
+                .join(format!("synth/reference-analytic/station_{i:03}.ref.ply"));
+            let a = crate::accuracy::read_ao(&p).unwrap();
+            assert_eq!(a.len(), sum.files[i].points);
+            assert!(a.iter().all(|v| (0.0..=1.0).contains(v)));
+        }
         for (i, f) in sum.files.iter().enumerate() {
             assert!(f.path.ends_with(format!("station_{i:03}.ply")));
             assert!(f.path.is_file() && f.points > 0);
