@@ -95,11 +95,11 @@ pub fn reference_path(dir: &Path, name: &str) -> PathBuf {
 /// valid points), else from its native grid; `None` when it has neither.
 fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
     let Container::Ply(ply) = container else {
-        return Ok(s
+        return s
             .grid
             .as_ref()
             .map(|g| reference::triangulate_grid(&s.points, g))
-            .transpose()?);
+            .transpose();
     };
     if let Some(faces) = ply.list_column("face", "vertex_indices") {
         let mut remap = vec![u32::MAX; s.vertex_count];
@@ -121,10 +121,10 @@ fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
         }
         return Ok(Some(tris));
     }
-    Ok(s.grid
+    s.grid
         .as_ref()
         .map(|g| reference::triangulate_grid(&s.points, g))
-        .transpose()?)
+        .transpose()
 }
 
 /// `mvao reference`: the reference obscurance of every point of every scan, cast against all

@@ -10,7 +10,7 @@ use mvao::io::e57_file::{read_e57, write_e57_scans, E57ScanOut};
 use mvao::io::raw::{PointTable, RawGrid};
 use mvao::io::source::{read_input, Format};
 use mvao::synth::{scan_scene, Scene, Station};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Three equirect stations of the synthetic room (small maps), scan-local points with poses.
 fn stations() -> Vec<mvao::scan::Scan> {

@@ -64,53 +64,57 @@ pub struct Dataset {
     pub warnings: Vec<String>,
 }
 
-impl Dataset {
-    /// Reads every file in `paths` and places its scans. `progress` is called once per file.
-    pub fn open(paths: &[PathBuf], opts: &PlaceOptions, progress: &dyn Fn()) -> Result<Dataset> {
+/// Poses of every input file resolved before any file is read (alignment file, sidecars,
+/// `--pose` by file), so files can be read and placed one at a time.
+#[derive(Debug, Clone)]
+pub struct Placer {
+    paths: Vec<PathBuf>,
+    opts: PlaceOptions,
+    file_pose: Vec<Option<(DMat4, String)>>,
+    alignment: Option<PathBuf>,
+}
+
+/// One input file read and placed.
+#[derive(Debug)]
+pub struct PlacedFile {
+    /// The file (its `scans` moved out into [`PlacedFile::scans`]).
+    pub file: InputFile,
+    /// Its scans with world poses.
+    pub scans: Vec<Scan>,
+    /// Per scan: file coordinates → world.
+    pub file_to_world: Vec<DMat4>,
+    /// Per scan: where its pose came from.
+    pub pose_source: Vec<String>,
+    /// Warnings about this file.
+    pub warnings: Vec<String>,
+}
+
+impl Placer {
+    /// Resolves the alignment file, sidecars and file-level `--pose` flags of `paths`.
+    pub fn new(paths: &[PathBuf], opts: &PlaceOptions) -> Result<Placer> {
         if paths.is_empty() {
             return Err(Error::Param("no scan given".into()));
         }
-        let mut files = Vec::with_capacity(paths.len());
-        let mut warnings = Vec::new();
-        for p in paths {
-            let f = source::read_input(p)?;
-            if f.scans.is_empty() {
-                return Err(Error::format(p, "holds no scan"));
-            }
-            files.push(f);
-            progress();
-        }
-        // Poses per file from the alignment file or sidecars.
-        let fully_overridden = |f: &InputFile| {
-            let single = f.scans.len() == 1;
-            f.scans
-                .iter()
-                .all(|s| override_for(opts, &s.name, &f.path, single).is_some())
-        };
-        let sidecar: Vec<Option<PathBuf>> = files
+        let by_file = |p: &Path| opts.poses.iter().any(|o| names_file(&o.target, p));
+        let sidecar: Vec<Option<PathBuf>> = paths
             .iter()
-            .map(|f| {
-                (!fully_overridden(f))
-                    .then(|| align::sidecar_of(&f.path))
-                    .flatten()
-            })
+            .map(|p| (!by_file(p)).then(|| align::sidecar_of(p)).flatten())
             .collect();
-        let needs_align: Vec<usize> = (0..files.len())
-            .filter(|&i| sidecar[i].is_none() && !fully_overridden(&files[i]))
+        let needs_align: Vec<usize> = (0..paths.len())
+            .filter(|&i| sidecar[i].is_none() && !by_file(&paths[i]))
             .collect();
         let align_path = match &opts.align {
             Some(a) => Some(a.clone()),
             None if !needs_align.is_empty() => {
-                let list: Vec<PathBuf> =
-                    needs_align.iter().map(|&i| files[i].path.clone()).collect();
+                let list: Vec<PathBuf> = needs_align.iter().map(|&i| paths[i].clone()).collect();
                 align::find_alignment_beside(&list)?
             }
             None => None,
         };
-        let mut file_pose: Vec<Option<(DMat4, String)>> = vec![None; files.len()];
+        let mut file_pose: Vec<Option<(DMat4, String)>> = vec![None; paths.len()];
         if let Some(a) = &align_path {
             let al: Alignment = align::read_alignment_with(a, opts.allow_scale)?;
-            let list: Vec<PathBuf> = needs_align.iter().map(|&i| files[i].path.clone()).collect();
+            let list: Vec<PathBuf> = needs_align.iter().map(|&i| paths[i].clone()).collect();
             let poses = align::poses_for_scans(&al, &list)?;
             for (&i, m) in needs_align.iter().zip(poses) {
                 file_pose[i] = Some((m, format!("alignment {}", a.display())));
@@ -118,126 +122,191 @@ impl Dataset {
         }
         for (i, s) in sidecar.iter().enumerate() {
             if let Some(sc) = s {
-                let what = files[i].path.display().to_string();
+                let what = paths[i].display().to_string();
                 let m = align::read_matrix_file(sc, &what, opts.allow_scale)?;
                 file_pose[i] = Some((m, format!("sidecar {}", sc.display())));
             }
         }
+        Ok(Placer {
+            paths: paths.to_vec(),
+            opts: opts.clone(),
+            file_pose,
+            alignment: align_path,
+        })
+    }
+
+    /// Number of input files.
+    pub fn len(&self) -> usize {
+        self.paths.len()
+    }
+
+    /// True when there is no input file.
+    pub fn is_empty(&self) -> bool {
+        self.paths.is_empty()
+    }
+
+    /// The input files.
+    pub fn paths(&self) -> &[PathBuf] {
+        &self.paths
+    }
+
+    /// The alignment file used, if any.
+    pub fn alignment(&self) -> Option<&Path> {
+        self.alignment.as_deref()
+    }
+
+    /// Reads input file `fi` and places its scans.
+    pub fn open(&self, fi: usize) -> Result<PlacedFile> {
+        let opts = &self.opts;
+        let p = &self.paths[fi];
+        let mut f = source::read_input(p)?;
+        if f.scans.is_empty() {
+            return Err(Error::format(p, "holds no scan"));
+        }
+        let file_pose = &self.file_pose;
         let mut scans = Vec::new();
-        let mut origin = Vec::new();
         let mut file_to_world = Vec::new();
         let mut pose_source = Vec::new();
-        for (fi, f) in files.iter_mut().enumerate() {
-            let own: Vec<Scan> = std::mem::take(&mut f.scans);
-            let single = own.len() == 1;
-            for (k, mut s) in own.into_iter().enumerate() {
-                let offset = f.file_to_local[k];
-                let given: Option<(DMat4, String)> =
-                    match override_for(opts, &s.name, &f.path, single) {
-                        Some(o) => Some((
-                            align::read_matrix_file(&o.file, &s.name, opts.allow_scale)?,
-                            format!("--pose {}", o.file.display()),
-                        )),
-                        None => file_pose[fi].clone(),
-                    };
-                if f.format.world_coordinates() {
-                    // LAS/LAZ hold world coordinates: a pose says where the scanner stood.
-                    let m = match given {
-                        Some((m, src)) => {
-                            let (rigid, _) = align::split_scale(m);
-                            let to_local = rigid.inverse() * s.pose;
-                            let rot = glam::DMat3::from_mat4(to_local);
-                            for p in &mut s.points {
-                                *p = to_local.transform_point3(p.as_dvec3()).as_vec3();
-                            }
-                            if let Some(ns) = s.normals.as_mut() {
-                                for n in ns {
-                                    *n = (rot * n.as_dvec3()).as_vec3();
-                                }
-                            }
-                            s.pose = rigid;
-                            pose_source
-                                .push(format!("{src} (scanner pose; file coordinates are world)"));
-                            DMat4::IDENTITY
+        let mut warnings = Vec::new();
+        let own: Vec<Scan> = std::mem::take(&mut f.scans);
+        let single = own.len() == 1;
+        for (k, mut s) in own.into_iter().enumerate() {
+            let offset = f.file_to_local[k];
+            let given: Option<(DMat4, String)> = match override_for(opts, &s.name, &f.path, single)
+            {
+                Some(o) => Some((
+                    align::read_matrix_file(&o.file, &s.name, opts.allow_scale)?,
+                    format!("--pose {}", o.file.display()),
+                )),
+                None => file_pose[fi].clone(),
+            };
+            if f.format.world_coordinates() {
+                // LAS/LAZ hold world coordinates: a pose says where the scanner stood.
+                let m = match given {
+                    Some((m, src)) => {
+                        let (rigid, _) = align::split_scale(m);
+                        let to_local = rigid.inverse() * s.pose;
+                        let rot = glam::DMat3::from_mat4(to_local);
+                        for p in &mut s.points {
+                            *p = to_local.transform_point3(p.as_dvec3()).as_vec3();
                         }
-                        None => {
-                            let at = if offset == glam::DVec3::ZERO {
-                                "the coordinate origin".to_string()
-                            } else {
-                                format!(
-                                    "the centre of its bounds ({:.3}, {:.3}, {:.3})",
-                                    offset.x, offset.y, offset.z
-                                )
-                            };
-                            warnings.push(format!(
-                                "{}: {} files carry no scanner position; the scanner is assumed at \
-                                 {at}. Give its pose (scanner → world) with --pose {}=FILE, a \
-                                 sidecar {} or an alignment file",
-                                f.path.display(),
-                                f.format,
-                                s.name,
-                                f.path.with_extension("txt").display()
-                            ));
-                            pose_source.push("none (no scanner position)".into());
-                            DMat4::IDENTITY
+                        if let Some(ns) = s.normals.as_mut() {
+                            for n in ns {
+                                *n = (rot * n.as_dvec3()).as_vec3();
+                            }
                         }
-                    };
-                    if s.skipped_nonfinite > 0 {
-                        warnings.push(format!(
-                            "{}: {} points with non-finite coordinates skipped",
-                            f.path.display(),
-                            s.skipped_nonfinite
-                        ));
+                        s.pose = rigid;
+                        pose_source
+                            .push(format!("{src} (scanner pose; file coordinates are world)"));
+                        DMat4::IDENTITY
                     }
-                    file_to_world.push(m);
-                    origin.push((fi, k));
-                    scans.push(s);
-                    continue;
-                }
-                let (m, src) = match given {
-                    Some((a, src)) if override_for(opts, &s.name, &f.path, single).is_some() => {
-                        (a * DMat4::from_translation(offset), src)
-                    }
-                    Some((a, src)) => (a * s.pose, src),
-                    None => (
-                        s.pose,
-                        if f.format.multi_scan() {
-                            format!("{} pose", f.format)
+                    None => {
+                        let at = if offset == glam::DVec3::ZERO {
+                            "the coordinate origin".to_string()
                         } else {
-                            "none (identity)".to_string()
-                        },
-                    ),
+                            format!(
+                                "the centre of its bounds ({:.3}, {:.3}, {:.3})",
+                                offset.x, offset.y, offset.z
+                            )
+                        };
+                        warnings.push(format!(
+                            "{}: {} files carry no scanner position; the scanner is assumed at \
+                             {at}. Give its pose (scanner → world) with --pose {}=FILE, a \
+                             sidecar {} or an alignment file",
+                            f.path.display(),
+                            f.format,
+                            s.name,
+                            f.path.with_extension("txt").display()
+                        ));
+                        pose_source.push("none (no scanner position)".into());
+                        DMat4::IDENTITY
+                    }
                 };
-                let off = offset;
-                if off.length() > 0.0 && !f.format.multi_scan() {
+                if s.skipped_nonfinite > 0 {
                     warnings.push(format!(
-                        "{}: coordinates beyond {} m; re-centred on ({:.3}, {:.3}, {:.3}) (kept in f64) and the scanner is assumed at that centre (no scanner position in the file)",
-                        f.path.display(),
-                        source::RECENTRE_ABOVE,
-                        off.x,
-                        off.y,
-                        off.z
-                    ));
-                }
-                if s.skipped_nonfinite > 0 && !f.format.multi_scan() {
-                    warnings.push(format!(
-                        "{}: {} vertices with non-finite coordinates skipped (not written)",
+                        "{}: {} points with non-finite coordinates skipped",
                         f.path.display(),
                         s.skipped_nonfinite
                     ));
                 }
-                let (rigid, stretch) = align::split_scale(m);
-                if (stretch - DMat3::IDENTITY).abs_diff_eq(DMat3::ZERO, 1e-12) {
-                    s.pose = rigid;
-                } else {
-                    apply_stretch(&mut s, stretch);
-                    s.pose = rigid;
-                }
-                file_to_world.push(m * DMat4::from_translation(-offset));
-                pose_source.push(src);
-                origin.push((fi, k));
+                file_to_world.push(m);
                 scans.push(s);
+                continue;
             }
+            let (m, src) = match given {
+                Some((a, src)) if override_for(opts, &s.name, &f.path, single).is_some() => {
+                    (a * DMat4::from_translation(offset), src)
+                }
+                Some((a, src)) => (a * s.pose, src),
+                None => (
+                    s.pose,
+                    if f.format.multi_scan() {
+                        format!("{} pose", f.format)
+                    } else {
+                        "none (identity)".to_string()
+                    },
+                ),
+            };
+            let off = offset;
+            if off.length() > 0.0 && !f.format.multi_scan() {
+                warnings.push(format!(
+                    "{}: coordinates beyond {} m; re-centred on ({:.3}, {:.3}, {:.3}) (kept in f64) and the scanner is assumed at that centre (no scanner position in the file)",
+                    f.path.display(),
+                    source::RECENTRE_ABOVE,
+                    off.x,
+                    off.y,
+                    off.z
+                ));
+            }
+            if s.skipped_nonfinite > 0 && !f.format.multi_scan() {
+                warnings.push(format!(
+                    "{}: {} vertices with non-finite coordinates skipped (not written)",
+                    f.path.display(),
+                    s.skipped_nonfinite
+                ));
+            }
+            let (rigid, stretch) = align::split_scale(m);
+            if (stretch - DMat3::IDENTITY).abs_diff_eq(DMat3::ZERO, 1e-12) {
+                s.pose = rigid;
+            } else {
+                apply_stretch(&mut s, stretch);
+                s.pose = rigid;
+            }
+            file_to_world.push(m * DMat4::from_translation(-offset));
+            pose_source.push(src);
+            scans.push(s);
+        }
+        Ok(PlacedFile {
+            file: f,
+            scans,
+            file_to_world,
+            pose_source,
+            warnings,
+        })
+    }
+}
+
+impl Dataset {
+    /// Reads every file in `paths` and places its scans. `progress` is called once per file.
+    pub fn open(paths: &[PathBuf], opts: &PlaceOptions, progress: &dyn Fn()) -> Result<Dataset> {
+        let placer = Placer::new(paths, opts)?;
+        let mut files = Vec::with_capacity(paths.len());
+        let mut scans = Vec::new();
+        let mut origin = Vec::new();
+        let mut file_to_world = Vec::new();
+        let mut pose_source = Vec::new();
+        let mut warnings = Vec::new();
+        for fi in 0..placer.len() {
+            let pf = placer.open(fi)?;
+            for k in 0..pf.scans.len() {
+                origin.push((fi, k));
+            }
+            scans.extend(pf.scans);
+            file_to_world.extend(pf.file_to_world);
+            pose_source.extend(pf.pose_source);
+            warnings.extend(pf.warnings);
+            files.push(pf.file);
+            progress();
         }
         let identity = pose_source
             .iter()
@@ -256,7 +325,7 @@ impl Dataset {
             origin,
             file_to_world,
             pose_source,
-            alignment: align_path,
+            alignment: placer.alignment().map(Path::to_path_buf),
             warnings,
         })
     }
