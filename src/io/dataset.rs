@@ -95,6 +95,10 @@ impl Placer {
         if paths.is_empty() {
             return Err(Error::Param("no scan given".into()));
         }
+        // A missing input is named before any alignment lookup in its directory.
+        for p in paths {
+            std::fs::metadata(p).map_err(|e| Error::io(p, e))?;
+        }
         let by_file = |p: &Path| opts.poses.iter().any(|o| names_file(&o.target, p));
         let sidecar: Vec<Option<PathBuf>> = paths
             .iter()
