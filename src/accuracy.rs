@@ -269,26 +269,29 @@ pub fn read_ao(path: &Path) -> Result<Vec<f32>> {
 
 /// The references of `scans` from `dir`, checked against their point counts.
 pub fn load_reference(dir: &Path, scans: &[Scan]) -> Result<Vec<Vec<f32>>> {
+    let named: Vec<(String, usize)> = scans.iter().map(|s| (s.name.clone(), s.len())).collect();
+    load_reference_named(dir, &named)
+}
+
+/// The references of the scans named with their point counts.
+pub fn load_reference_named(dir: &Path, scans: &[(String, usize)]) -> Result<Vec<Vec<f32>>> {
     scans
         .iter()
-        .map(|s| {
-            let p = reference_path(dir, &s.name);
+        .map(|(name, len)| {
+            let p = reference_path(dir, name);
             if !p.is_file() {
                 return Err(Error::Param(format!(
-                    "{}: no reference for scan '{}' (run `mvao reference` on the same scans)",
+                    "{}: no reference for scan '{name}' (run `mvao reference` on the same scans)",
                     p.display(),
-                    s.name
                 )));
             }
             let a = read_ao(&p)?;
-            if a.len() != s.len() {
+            if a.len() != *len {
                 return Err(Error::format(
                     &p,
                     format!(
-                        "holds {} points but scan '{}' has {}: not the reference of this scan",
+                        "holds {} points but scan '{name}' has {len}: not the reference of this scan",
                         a.len(),
-                        s.name,
-                        s.len()
                     ),
                 ));
             }

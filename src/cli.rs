@@ -27,6 +27,9 @@ pub struct Cli {
 pub enum Command {
     /// Compute per-point multi-view AO for aligned scans and write coloured copies.
     Merge(MergeArgs),
+    /// Compute and store the per-scan products (G-buffer, SSAO, border field) in the work
+    /// directory, without merging: one job per scan with `--only`.
+    Prepare(MergeArgs),
     /// Describe scan files: format, points, attributes, pose, grid, sensor model, bounds,
     /// overlaps.
     Info(InfoArgs),
@@ -118,6 +121,44 @@ pub struct MergeArgs {
     /// (`mvao reference` on the same scans with the same t_max); metrics go to report.json.
     #[arg(long, value_name = "DIR")]
     pub reference: Option<PathBuf>,
+    /// Work directory of the per-scan products (EXR maps, manifest) [default: OUTDIR/work].
+    /// A rerun reuses every product whose inputs and parameters are unchanged.
+    #[arg(long, value_name = "DIR")]
+    pub work: Option<PathBuf>,
+    /// Memory budget, e.g. 2G, 500M [default: half the machine's memory]. Maps of other
+    /// scans are cached within it and loaded again when evicted.
+    #[arg(long, value_name = "SIZE", value_parser = parse_size)]
+    pub max_memory: Option<u64>,
+    /// Only this scan (by name; repeatable): merge it against the prepared products of the
+    /// scans it overlaps. With `prepare`: prepare only it.
+    #[arg(long, value_name = "SCAN")]
+    pub only: Vec<String>,
+    /// Print the plan (pairs kept and skipped, memory, work) and stop.
+    #[arg(long)]
+    pub dry_run: bool,
+}
+
+/// `--max-memory`: bytes with an optional K, M, G or T suffix (powers of 1024).
+pub fn parse_size(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let (num, mult) = match t.char_indices().last() {
+        Some((i, c)) if c.is_ascii_alphabetic() => {
+            let m: u64 = match c.to_ascii_uppercase() {
+                'K' => 1 << 10,
+                'M' => 1 << 20,
+                'G' => 1 << 30,
+                'T' => 1 << 40,
+                'B' => 1,
+                _ => return Err(format!("'{s}': unknown size suffix (use K, M, G or T)")),
+            };
+            (&t[..i], m)
+        }
+        _ => (t, 1),
+    };
+    match num.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok((v * mult as f64) as u64),
+        _ => Err(format!("'{s}' is not a size such as 2G or 512M")),
+    }
 }
 
 /// Flags of `mvao reference`.
@@ -472,6 +513,11 @@ impl MergeArgs {
             preview: !self.no_preview,
             force: self.force,
             reference: self.reference,
+            work_dir: self.work,
+            max_memory: self.max_memory,
+            only: self.only,
+            dry_run: self.dry_run,
+            prepare_only: false,
         })
     }
 }

@@ -14,7 +14,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             let quiet = args.quiet;
             let cfg = args.into_config().map_err(anyhow::Error::msg)?;
             let report = crate::pipeline::run(&cfg)?;
-            if !quiet {
+            if !quiet && !cfg.dry_run {
                 eprintln!(
                     "{} scans, {} points in {:.2} s; {} without SSAO sample, {} with zero merge weight; results in {}",
                     report.scans.len(),
@@ -23,6 +23,23 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
                     report.totals.no_ssao_sample,
                     report.totals.zero_merge_weight,
                     cfg.out_dir.display()
+                );
+            }
+            Ok(())
+        }
+        Command::Prepare(args) => {
+            let quiet = args.quiet;
+            let mut cfg = args.into_config().map_err(anyhow::Error::msg)?;
+            cfg.prepare_only = true;
+            let report = crate::pipeline::run(&cfg)?;
+            if !quiet {
+                eprintln!(
+                    "products in {}; {:.2} s",
+                    cfg.work_dir
+                        .clone()
+                        .unwrap_or_else(|| cfg.out_dir.join("work"))
+                        .display(),
+                    report.totals.wall_s
                 );
             }
             Ok(())

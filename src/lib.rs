@@ -47,6 +47,7 @@ pub mod gbuffer;
 pub mod info;
 pub mod io;
 pub mod merge;
+pub mod outofcore;
 pub mod pipeline;
 pub mod plot;
 pub mod projection;

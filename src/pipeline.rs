@@ -4,13 +4,12 @@
 
 use crate::error::{Error, Result};
 use crate::gbuffer::{self, GBuffer, EMPTY};
-use crate::io::dataset::{Dataset, PlaceOptions};
-use crate::io::output::{write_preview, ColorMode};
-use crate::io::results::{self, WriteOptions};
+use crate::io::dataset::PlaceOptions;
+use crate::io::output::ColorMode;
 use crate::io::source::Format;
 use crate::merge::{self, MergeParams, MergeStats, View};
 use crate::projection::Projection;
-use crate::report::{Parameters, Report, ScanReport, Totals};
+use crate::report::{Parameters, Report, Totals};
 use crate::scan::{normals, Scan};
 use crate::sensor::{self, ProjectionChoice, SensorSetup};
 use crate::ssao::{self, AoMap, Estimator, SsaoParams};
@@ -45,6 +44,16 @@ pub struct Config {
     pub force: bool,
     /// Reference directory to score the result against.
     pub reference: Option<PathBuf>,
+    /// Work directory for per-scan products; `None` = `OUTDIR/work`.
+    pub work_dir: Option<PathBuf>,
+    /// Memory budget in bytes; `None` = half the machine's memory.
+    pub max_memory: Option<u64>,
+    /// Only these scans (by name): prepare them, or merge them against their partners.
+    pub only: Vec<String>,
+    /// Print the plan and stop.
+    pub dry_run: bool,
+    /// Stop after preparing the products (`mvao prepare`).
+    pub prepare_only: bool,
 }
 
 /// Parameters of the in-memory computation (no files).
@@ -523,12 +532,12 @@ pub fn world_bounds(s: &Scan) -> (DVec3, DVec3) {
 }
 
 /// True when two boxes, grown by `margin`, intersect.
-fn overlaps(a: &(DVec3, DVec3), b: &(DVec3, DVec3), margin: f64) -> bool {
+pub fn overlaps(a: &(DVec3, DVec3), b: &(DVec3, DVec3), margin: f64) -> bool {
     (a.0 - margin).cmple(b.1).all() && (b.0 - margin).cmple(a.1).all()
 }
 
 /// Progress bars on stderr (one per stage), silent with `-q` or when stderr is not a terminal.
-struct Bars {
+pub(crate) struct Bars {
     quiet: bool,
     bar: std::sync::Mutex<Option<ProgressBar>>,
 }
@@ -603,187 +612,39 @@ pub fn run(cfg: &Config) -> Result<Report> {
         quiet: cfg.quiet,
         bar: std::sync::Mutex::new(None),
     };
-    // Read and place the scans.
-    let t0 = Instant::now();
-    obs.stage("read", cfg.scans.len() as u64);
-    let ds = Dataset::open(&cfg.scans, &cfg.place, &|| obs.advance(1))?;
-    obs.done("read", 0.0);
-    report.add_time("read", t0.elapsed().as_secs_f64());
-    for w in &ds.warnings {
+    let oc = crate::outofcore::run(cfg, &obs, cfg.reference.is_some())?;
+    for w in &oc.warnings {
         warn(&mut report, w.clone());
     }
-    report.alignment = ds.alignment.as_ref().map(|a| a.display().to_string());
-    // Output names must be distinct and must not clobber anything without --force.
-    for (i, s) in ds.scans.iter().enumerate() {
-        if let Some(j) = ds.scans[..i].iter().position(|t| t.name == s.name) {
-            return Err(Error::Param(format!(
-                "two scans are named '{}' ({} and {}); rename one or run them separately",
-                s.name,
-                ds.files[ds.origin[j].0].path.display(),
-                ds.files[ds.origin[i].0].path.display()
-            )));
-        }
+    for (k, t) in &oc.times {
+        report.add_time(k, *t);
     }
-    let units = results::plan(&ds, cfg.format, &cfg.out_dir)?;
-    let mut outputs: Vec<PathBuf> = units.iter().map(|u| u.path.clone()).collect();
-    if cfg.preview {
-        outputs.extend(
-            ds.scans
-                .iter()
-                .map(|s| cfg.out_dir.join(format!("{}.png", s.name))),
-        );
+    report.bytes_read = oc.bytes_read.iter().cloned().collect();
+    report.products = [oc.prepared.0, oc.prepared.1];
+    report.map_loads = oc.map_loads;
+    if cfg.dry_run {
+        println!("{}", oc.plan.to_text());
+        report.plan = Some(oc.plan);
+        return Ok(report);
     }
-    outputs.push(cfg.out_dir.join("report.json"));
-    for o in &outputs {
-        if cfg.scans.iter().any(|s| same_file(s, o)) {
-            return Err(Error::Param(format!(
-                "{}: output would overwrite an input",
-                o.display()
-            )));
-        }
-        if o.exists() && !cfg.force {
-            return Err(Error::Param(format!(
-                "{}: exists; use --force to overwrite or choose another -o",
-                o.display()
-            )));
-        }
-    }
-    let scans = &ds.scans;
-    for s in scans {
-        if s.is_empty() {
-            return Err(Error::scan(
-                s.path
-                    .as_ref()
-                    .map(|p| p.display().to_string())
-                    .unwrap_or(s.name.clone()),
-                "has no point with finite coordinates",
-            ));
-        }
-    }
-
-    let refs = match &cfg.reference {
-        Some(d) => Some(crate::accuracy::load_reference(d, scans)?),
-        None => None,
-    };
-    let prm = &cfg.compute;
-    let t0 = Instant::now();
-    let computed = compute(scans, prm, &obs)?;
-    for r in &computed.scans {
-        for (name, secs) in &r.view.times {
-            report.add_time(name, *secs);
-        }
-    }
-    report.add_time("merge", computed.merge_s);
-    report.add_time("compute_total", t0.elapsed().as_secs_f64());
-    if !cfg.quiet {
+    if !cfg.quiet && !cfg.prepare_only {
         eprintln!(
             "radius {:.4} m, tmax {:.4} m, dmin {:.3} m, dmax {:.3} m ({})",
-            computed.ssao.radius,
-            computed.ssao.tmax,
-            computed.merge.dmin,
-            computed.merge.dmax,
-            if computed.defaults_note.is_empty() {
+            oc.ssao.radius,
+            oc.ssao.tmax,
+            oc.merge.dmin,
+            oc.merge.dmax,
+            if oc.defaults_note.is_empty() {
                 "as given"
             } else {
-                computed.defaults_note.as_str()
+                oc.defaults_note.as_str()
             }
         );
     }
-
-    std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
-    let t0 = Instant::now();
-    obs.stage("write", scans.len() as u64);
-    let comment = format!(
-        "mvao {} {}: ao = {} (1 = open)",
-        env!("CARGO_PKG_VERSION"),
-        if prm.ssao_only { "ssao-only" } else { "merge" },
-        match computed.ssao.estimator {
-            Estimator::Paper => "paper estimator",
-            Estimator::Horizon => "horizon estimator",
-        }
-    );
-    let aos: Vec<Vec<f32>> = computed.scans.iter().map(|r| r.ao.clone()).collect();
-    let wopts = WriteOptions {
-        gamma: cfg.gamma,
-        color: cfg.color,
-    };
-    for u in &units {
-        results::write(u, &ds, &aos, wopts, &comment)?;
-    }
-    for (i, (s, r)) in scans.iter().zip(&computed.scans).enumerate() {
-        let out = units
-            .iter()
-            .find(|u| u.scans.contains(&i))
-            .map(|u| u.path.clone())
-            .unwrap_or_default();
-        if cfg.preview {
-            let g = &r.view.gbuf;
-            let vals: Vec<Option<f32>> = g
-                .point
-                .iter()
-                .map(|&p| (p != EMPTY).then(|| r.ao[p as usize]))
-                .collect();
-            write_preview(
-                &cfg.out_dir.join(format!("{}.png", s.name)),
-                g.width,
-                g.height,
-                &vals,
-                cfg.gamma,
-            )?;
-        }
-        let (mn, mx, sum) =
-            r.ao.iter()
-                .fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
-                    (a.0.min(v), a.1.max(v), a.2 + v as f64)
-                });
-        let proj = &r.view.sensor.projection;
-        report.scans.push(ScanReport {
-            name: s.name.clone(),
-            input: s
-                .path
-                .as_ref()
-                .map(|p| p.display().to_string())
-                .unwrap_or_default(),
-            output: out.display().to_string(),
-            vertices: s.vertex_count,
-            points: s.len(),
-            skipped_nonfinite: s.skipped_nonfinite,
-            sensor_model: proj.sensor_model().to_string(),
-            map_size: [proj.width, proj.height],
-            map_filled: r.view.gbuf.filled(),
-            native_grid: r.view.sensor.grid_pixels.is_some(),
-            grid_fit_rms_px: r.view.sensor.fit_rms_px,
-            sensor_reason: r.view.sensor.reason.clone(),
-            normals: r.view.normals_note.clone(),
-            no_ssao_sample: r.no_sample,
-            zero_merge_weight: r.merge.zero_weight,
-            point_views: r.merge.point_views,
-            ao_min: mn,
-            ao_mean: (sum / s.len().max(1) as f64) as f32,
-            ao_max: mx,
-        });
-        obs.advance(1);
-    }
-    obs.done("write", 0.0);
-    report.add_time("write", t0.elapsed().as_secs_f64());
-    report.parameters = Parameters {
-        ssao: Some(computed.ssao),
-        merge: Some(computed.merge),
-        defaults_note: computed.defaults_note.clone(),
-        gamma: cfg.gamma,
-        color: format!("{:?}", cfg.color).to_lowercase(),
-        projection: format!("{:?}", prm.projection).to_lowercase(),
-        ssao_only: prm.ssao_only,
-    };
-    report.totals = Totals {
-        points: report.scans.iter().map(|s| s.points as u64).sum(),
-        no_ssao_sample: report.scans.iter().map(|s| s.no_ssao_sample).sum(),
-        zero_merge_weight: report.scans.iter().map(|s| s.zero_merge_weight).sum(),
-        wall_s: t_all.elapsed().as_secs_f64(),
-    };
-    if let (Some(d), Some(refs)) = (&cfg.reference, &refs) {
-        let names: Vec<String> = scans.iter().map(|s| s.name.clone()).collect();
-        let ssao: Vec<Vec<f32>> = computed.scans.iter().map(|r| r.ssao.clone()).collect();
+    if let (Some(d), Some(refs)) = (&cfg.reference, &oc.refs) {
+        let names: Vec<String> = oc.values.iter().map(|v| v.0.clone()).collect();
+        let ssao: Vec<Vec<f32>> = oc.values.iter().map(|v| v.1.clone()).collect();
+        let aos: Vec<Vec<f32>> = oc.values.iter().map(|v| v.2.clone()).collect();
         let acc = crate::accuracy::evaluate(d, &names, Some(&ssao), &aos, refs);
         if !cfg.quiet {
             if let Some(s) = &acc.ssao {
@@ -791,15 +652,40 @@ pub fn run(cfg: &Config) -> Result<Report> {
             }
             eprintln!(
                 "{} vs reference: {}",
-                if prm.ssao_only { "result" } else { "MVAO" },
+                if cfg.compute.ssao_only { "result" } else { "MVAO" },
                 acc.result.one_line()
             );
         }
         report.accuracy = Some(acc);
     }
+    report.parameters = Parameters {
+        ssao: Some(oc.ssao),
+        merge: Some(oc.merge),
+        defaults_note: oc.defaults_note.clone(),
+        gamma: cfg.gamma,
+        color: format!("{:?}", cfg.color).to_lowercase(),
+        projection: format!("{:?}", cfg.compute.projection).to_lowercase(),
+        ssao_only: cfg.compute.ssao_only,
+    };
+    report.scans = oc.scans;
+    report.plan = Some(oc.plan);
+    report.peak_rss_bytes = crate::outofcore::peak_rss();
+    report.totals = Totals {
+        points: report.scans.iter().map(|s| s.points as u64).sum(),
+        no_ssao_sample: report.scans.iter().map(|s| s.no_ssao_sample).sum(),
+        zero_merge_weight: report.scans.iter().map(|s| s.zero_merge_weight).sum(),
+        wall_s: t_all.elapsed().as_secs_f64(),
+    };
+    if cfg.prepare_only {
+        return Ok(report);
+    }
     let json = serde_json::to_vec_pretty(&report)
         .map_err(|e| Error::Param(format!("cannot encode the report: {e}")))?;
-    let rp = cfg.out_dir.join("report.json");
+    // Jobs merging one scan each (`--only`) run side by side: one report per job.
+    let rp = match cfg.only.first() {
+        None => cfg.out_dir.join("report.json"),
+        Some(n) => cfg.out_dir.join(format!("report.{n}.json")),
+    };
     crate::io::atomic::write_atomic(&rp, |w| std::io::Write::write_all(w, &json))?;
     Ok(report)
 }

@@ -24,6 +24,17 @@ pub struct Report {
     pub totals: Totals,
     /// Warnings printed during the run.
     pub warnings: Vec<String>,
+    /// The plan: pairs kept and skipped, memory and work.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub plan: Option<crate::outofcore::Plan>,
+    /// Peak resident memory of the process (bytes).
+    pub peak_rss_bytes: Option<u64>,
+    /// Bytes read per stage (inputs and products).
+    pub bytes_read: BTreeMap<String, u64>,
+    /// Per-scan products recomputed and reused from the work directory.
+    pub products: [usize; 2],
+    /// Maps of other scans loaded by the merge (cache misses).
+    pub map_loads: u64,
     /// Error against a reference (`--reference`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accuracy: Option<crate::accuracy::Accuracy>,

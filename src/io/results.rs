@@ -50,23 +50,44 @@ fn same_family(input: Format, out: Format) -> bool {
 /// to a one-scan format gives one file per scan (named after the scan). Errors when two
 /// outputs would share a name.
 pub fn plan(ds: &Dataset, format: Option<Format>, out_dir: &Path) -> Result<Vec<OutputUnit>> {
+    let files: Vec<(PathBuf, Format, Vec<String>)> = ds
+        .files
+        .iter()
+        .enumerate()
+        .map(|(fi, f)| {
+            let names = (0..ds.scans.len())
+                .filter(|&i| ds.origin[i].0 == fi)
+                .map(|i| ds.scans[i].name.clone())
+                .collect();
+            (f.path.clone(), f.format, names)
+        })
+        .collect();
+    plan_files(&files, format, out_dir)
+}
+
+/// [`plan`] from each input file's path, format and scan names (in order; scans are
+/// numbered across files in that order).
+pub fn plan_files(
+    files: &[(PathBuf, Format, Vec<String>)],
+    format: Option<Format>,
+    out_dir: &Path,
+) -> Result<Vec<OutputUnit>> {
     if format == Some(Format::Ptx) {
         return Err(Error::Param(
             "PTX is read, not written: choose --format ply, las, laz or e57".into(),
         ));
     }
     let mut units: Vec<OutputUnit> = Vec::new();
-    for (fi, f) in ds.files.iter().enumerate() {
-        let out = format.unwrap_or(f.format.default_output());
-        let scans: Vec<usize> = (0..ds.scans.len())
-            .filter(|&i| ds.origin[i].0 == fi)
-            .collect();
-        let stem = f
-            .path
+    let mut next = 0usize;
+    for (fi, (path, fmt, names)) in files.iter().enumerate() {
+        let out = format.unwrap_or(fmt.default_output());
+        let scans: Vec<usize> = (next..next + names.len()).collect();
+        next += names.len();
+        let stem = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let fam = same_family(f.format, out);
+        let fam = same_family(*fmt, out);
         if fam || out == Format::E57 || scans.len() == 1 {
             units.push(OutputUnit {
                 path: out_dir.join(format!("{stem}.mvao.{}", out.extension())),
@@ -76,9 +97,9 @@ pub fn plan(ds: &Dataset, format: Option<Format>, out_dir: &Path) -> Result<Vec<
                 same_family: fam,
             });
         } else {
-            for i in scans {
+            for (k, i) in scans.into_iter().enumerate() {
                 units.push(OutputUnit {
-                    path: out_dir.join(format!("{}.mvao.{}", ds.scans[i].name, out.extension())),
+                    path: out_dir.join(format!("{}.mvao.{}", names[k], out.extension())),
                     format: out,
                     file: fi,
                     scans: vec![i],
@@ -91,8 +112,8 @@ pub fn plan(ds: &Dataset, format: Option<Format>, out_dir: &Path) -> Result<Vec<
         if let Some(v) = units[..i].iter().find(|v| v.path == u.path) {
             return Err(Error::Param(format!(
                 "{} and {} would both write {}; rename one or run them separately",
-                ds.files[v.file].path.display(),
-                ds.files[u.file].path.display(),
+                files[v.file].0.display(),
+                files[u.file].0.display(),
                 u.path.display()
             )));
         }

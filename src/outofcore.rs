@@ -1,0 +1,815 @@
+//! `mvao merge` and `mvao prepare` with a work directory and a memory budget. Three passes
+//! over the inputs, each holding one input file at a time:
+//! 1. **catalog**: counts, world bounds, a fingerprint of each scan's local data and the
+//!    sample the default radius is taken from; the plan (pairs kept and skipped, memory and
+//!    work) follows from it (`--dry-run` stops here);
+//! 2. **prepare**: per scan, the G-buffer, SSAO map and border field, written to the work
+//!    directory unless a product with the same inputs and parameters is already there;
+//! 3. **merge**: per scan, the other scans' maps are loaded on demand through a cache bounded
+//!    by the budget, added one view at a time in index order (bit-identical to the in-memory
+//!    merge), and the results written.
+//!
+//! Every product is written atomically and recorded last, so a run killed at any moment
+//! leaves the work directory consistent; the rerun recomputes only what is missing.
+
+use crate::error::{Error, Result};
+use crate::gbuffer::EMPTY;
+use crate::io::dataset::{Dataset, Placer};
+use crate::io::output::write_preview;
+use crate::io::results::{self, WriteOptions};
+use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
+use crate::pipeline::{overlaps, prepare_view, robust_diagonal, world_bounds, Config, Observer};
+use crate::report::ScanReport;
+use crate::scan::Scan;
+use crate::ssao::SsaoParams;
+use crate::work::{self, InputRecord, Manifest, MergeMaps};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What the catalog pass learns of one scan.
+#[derive(Debug, Clone, Serialize)]
+pub struct CatalogScan {
+    /// Scan name.
+    pub name: String,
+    /// Index of its file.
+    pub file: usize,
+    /// Index within its file.
+    pub index: usize,
+    /// Valid points.
+    pub points: usize,
+    /// World bounds.
+    pub bounds: [[f64; 3]; 2],
+    /// Pixels of the map it will get (native grid, else about one per point).
+    pub map_pixels: u64,
+    /// xxh3 of its local points, normals and grid (what its products depend on).
+    pub data_hash: String,
+    /// Work-directory key.
+    pub key: String,
+    /// Local → world pose.
+    pub pose: glam::DMat4,
+}
+
+/// The plan of a run, printed by `--dry-run` and kept in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct Plan {
+    /// Per scan.
+    pub scans: Vec<CatalogScan>,
+    /// Pairs (i, j), i ≠ j, whose bounds meet (grown by the reach of SSAO and of eq. 7).
+    pub pairs_kept: usize,
+    /// Pairs that cannot share surface and are skipped.
+    pub pairs_skipped: usize,
+    /// Largest single view in bytes (estimated).
+    pub largest_view_bytes: u64,
+    /// All views together in bytes (estimated): what an in-memory run would hold.
+    pub all_views_bytes: u64,
+    /// The memory budget in bytes.
+    pub budget_bytes: u64,
+    /// Point-views the merge will visit (points × kept views, including their own).
+    pub point_views: u64,
+}
+
+impl Plan {
+    /// A human-readable summary.
+    pub fn to_text(&self) -> String {
+        let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+        let pts: usize = self.scans.iter().map(|s| s.points).sum();
+        format!(
+            "plan: {} scans, {} points; pairs kept {}, skipped {} (bounds do not meet); \
+             views ≈ {:.2} GiB in all, largest {:.3} GiB; budget {:.2} GiB; {} point-views to merge",
+            self.scans.len(),
+            pts,
+            self.pairs_kept,
+            self.pairs_skipped,
+            gib(self.all_views_bytes),
+            gib(self.largest_view_bytes),
+            gib(self.budget_bytes),
+            self.point_views
+        )
+    }
+}
+
+/// Per-scan facts recorded beside the products, so a rerun can plan the merge without
+/// loading every view.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Summary {
+    points: usize,
+    max_radius: f32,
+    depth_min: f32,
+    depth_max: f32,
+    ortho: bool,
+    no_sample: u64,
+    filled: usize,
+    sensor_model: String,
+    map_size: [usize; 2],
+    native_grid: bool,
+    fit_rms_px: Option<f64>,
+    reason: String,
+    normals: String,
+    times: Vec<(String, f64)>,
+}
+
+fn summary_path(dir: &Path, key: &str) -> PathBuf {
+    dir.join(format!("{key}.summary.json"))
+}
+
+/// Estimated bytes of a loaded view with `pixels` pixels and `points` points.
+fn view_bytes(pixels: u64, points: u64) -> u64 {
+    // position 12, normal 12, depth 4, radius 4, point 4, ssao 4, border 4 per pixel; radii,
+    // pixel, depth per point.
+    pixels * 44 + points * 12
+}
+
+/// Peak resident memory of this process so far (bytes), where the system tells.
+pub fn peak_rss() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Total memory of the machine (bytes), where the system tells.
+pub fn total_memory() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = s.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// The default budget: half the machine's memory (4 GiB where it cannot be read).
+pub fn default_budget() -> u64 {
+    total_memory().map_or(4 << 30, |m| m / 2)
+}
+
+/// A fingerprint of what a scan's products depend on: local points, normals and grid.
+fn data_hash(s: &Scan) -> String {
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    for p in &s.points {
+        for v in p.to_array() {
+            h.update(&v.to_le_bytes());
+        }
+    }
+    if let Some(n) = &s.normals {
+        h.update(b"n");
+        for p in n {
+            for v in p.to_array() {
+                h.update(&v.to_le_bytes());
+            }
+        }
+    }
+    if let Some(g) = &s.grid {
+        h.update(b"g");
+        h.update(&g.rows.to_le_bytes());
+        h.update(&g.cols.to_le_bytes());
+        for (r, c) in g.row.iter().zip(&g.col) {
+            h.update(&r.to_le_bytes());
+            h.update(&c.to_le_bytes());
+        }
+    }
+    format!("{:032x}", h.digest128())
+}
+
+/// A cache of other scans' maps, bounded in bytes, least recently used out first.
+struct MapCache {
+    budget: u64,
+    used: u64,
+    tick: u64,
+    maps: HashMap<usize, (MergeMaps, u64, u64)>,
+    loads: u64,
+    bytes_read: u64,
+}
+
+impl MapCache {
+    fn get(&mut self, j: usize, dir: &Path, key: &str) -> Result<&MergeMaps> {
+        self.tick += 1;
+        if !self.maps.contains_key(&j) {
+            let m = work::load_maps_for_merge(dir, key)?;
+            let bytes = view_bytes((m.gbuf.width * m.gbuf.height) as u64, 0);
+            self.loads += 1;
+            self.bytes_read += bytes;
+            while self.used + bytes > self.budget && !self.maps.is_empty() {
+                let oldest = self
+                    .maps
+                    .iter()
+                    .min_by_key(|(_, v)| v.2)
+                    .map(|(k, _)| *k)
+                    .unwrap_or(j);
+                if let Some((_, b, _)) = self.maps.remove(&oldest) {
+                    self.used -= b;
+                }
+            }
+            self.used += bytes;
+            self.maps.insert(j, (m, bytes, self.tick));
+        }
+        let tick = self.tick;
+        let e = self
+            .maps
+            .get_mut(&j)
+            .ok_or_else(|| Error::Param("map cache lost an entry (internal error)".into()))?;
+        e.2 = tick;
+        Ok(&e.0)
+    }
+}
+
+/// Refuses to start when an output would overwrite an input, or exists without `--force`.
+fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
+    let files: Vec<(PathBuf, crate::io::source::Format, Vec<String>)> = cfg
+        .scans
+        .iter()
+        .enumerate()
+        .map(|(fi, p)| {
+            let f = crate::io::source::Format::of_path(p)?;
+            let names = cat
+                .iter()
+                .filter(|c| c.file == fi)
+                .map(|c| c.name.clone())
+                .collect();
+            Ok((p.clone(), f, names))
+        })
+        .collect::<Result<_>>()?;
+    for (i, c) in cat.iter().enumerate() {
+        if let Some(j) = cat[..i].iter().position(|d| d.name == c.name) {
+            return Err(Error::Param(format!(
+                "two scans are named '{}' ({} and {}); rename one or run them separately",
+                c.name,
+                cfg.scans[cat[j].file].display(),
+                cfg.scans[c.file].display()
+            )));
+        }
+    }
+    let selected = |n: &str| cfg.only.is_empty() || cfg.only.iter().any(|o| o == n);
+    let units = results::plan_files(&files, cfg.format, &cfg.out_dir)?;
+    let mut outputs: Vec<PathBuf> = units
+        .iter()
+        .filter(|u| u.scans.iter().any(|&i| selected(&cat[i].name)))
+        .map(|u| u.path.clone())
+        .collect();
+    if cfg.preview {
+        outputs.extend(
+            cat.iter()
+                .filter(|c| selected(&c.name))
+                .map(|c| cfg.out_dir.join(format!("{}.png", c.name))),
+        );
+    }
+    if cfg.only.is_empty() {
+        outputs.push(cfg.out_dir.join("report.json"));
+    }
+    for o in &outputs {
+        if cfg.scans.iter().any(|s| same_file(s, o)) {
+            return Err(Error::Param(format!(
+                "{}: output would overwrite an input",
+                o.display()
+            )));
+        }
+        if o.exists() && !cfg.force {
+            return Err(Error::Param(format!(
+                "{}: exists; use --force to overwrite or choose another -o",
+                o.display()
+            )));
+        }
+    }
+    for o in &cfg.only {
+        if !cat.iter().any(|c| &c.name == o) {
+            return Err(Error::Param(format!("--only {o}: no scan of that name")));
+        }
+    }
+    Ok(())
+}
+
+/// True when two paths name the same existing file.
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+/// Outcome of [`run`].
+pub struct Outcome {
+    /// The plan.
+    pub plan: Plan,
+    /// Per-scan reports (merged scans only).
+    pub scans: Vec<ScanReport>,
+    /// SSAO and merge parameters used.
+    pub ssao: SsaoParams,
+    /// Merge parameters used.
+    pub merge: MergeParams,
+    /// How the defaults were derived.
+    pub defaults_note: String,
+    /// Per-stage seconds.
+    pub times: Vec<(String, f64)>,
+    /// Bytes read per stage (inputs and products).
+    pub bytes_read: Vec<(String, u64)>,
+    /// Products recomputed / reused.
+    pub prepared: (usize, usize),
+    /// Maps loaded by the merge (cache misses).
+    pub map_loads: u64,
+    /// Per merged scan: (name, single-view SSAO, AO), kept only when asked (for `--reference`).
+    pub values: Vec<(String, Vec<f32>, Vec<f32>)>,
+    /// Warnings.
+    pub warnings: Vec<String>,
+    /// The reference values of the merged scans (`--reference`), checked before the work.
+    pub refs: Option<Vec<Vec<f32>>>,
+}
+
+/// Runs the passes `cfg` asks for. `keep_values` keeps each merged scan's AO in memory.
+pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcome> {
+    let mut warnings = Vec::new();
+    let mut times: Vec<(String, f64)> = Vec::new();
+    let mut bytes_read: Vec<(String, u64)> = Vec::new();
+    let placer = Placer::new(&cfg.scans, &cfg.place)?;
+    let work_dir = cfg
+        .work_dir
+        .clone()
+        .unwrap_or_else(|| cfg.out_dir.join("work"));
+    let budget = cfg.max_memory.unwrap_or_else(default_budget);
+    let input_bytes: u64 = cfg
+        .scans
+        .iter()
+        .map(|p| std::fs::metadata(p).map(|m| m.len()).unwrap_or(0))
+        .sum();
+
+    // Pass 1: catalog.
+    let t0 = Instant::now();
+    obs.stage("catalog", cfg.scans.len() as u64);
+    let mut cat: Vec<CatalogScan> = Vec::new();
+    let mut samples: Vec<Scan> = Vec::new();
+    let mut max_file_bytes = 0u64;
+    for fi in 0..placer.len() {
+        let pf = placer.open(fi)?;
+        warnings.extend(pf.warnings);
+        max_file_bytes = max_file_bytes.max(std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
+        for (k, s) in pf.scans.iter().enumerate() {
+            if s.is_empty() {
+                return Err(Error::scan(
+                    cfg.scans[fi].display().to_string(),
+                    format!("scan {} has no point with finite coordinates", s.name),
+                ));
+            }
+            let (lo, hi) = world_bounds(s);
+            // The same subsample `robust_diagonal` would take, so the default radius equals
+            // the in-memory computation's.
+            let step = s.len().div_ceil(20_000).max(1);
+            let mut sample = Scan::from_points(
+                s.name.clone(),
+                s.points.iter().step_by(step).copied().collect(),
+            );
+            sample.pose = s.pose;
+            samples.push(sample);
+            cat.push(CatalogScan {
+                name: s.name.clone(),
+                file: fi,
+                index: k,
+                points: s.len(),
+                bounds: [lo.to_array(), hi.to_array()],
+                map_pixels: s
+                    .grid
+                    .as_ref()
+                    .map_or(s.len() as u64, |g| g.rows as u64 * g.cols as u64),
+                data_hash: data_hash(s),
+                key: work::key_from_name(&s.name),
+                pose: s.pose,
+            });
+        }
+        obs.advance(1);
+    }
+    obs.done("catalog", t0.elapsed().as_secs_f64());
+    times.push(("catalog".into(), t0.elapsed().as_secs_f64()));
+    bytes_read.push(("catalog".into(), input_bytes));
+    for (i, c) in cat.iter().enumerate() {
+        if let Some(j) = cat[..i].iter().position(|d| d.key == c.key) {
+            return Err(Error::Param(format!(
+                "scans '{}' and '{}' would share the work-directory key '{}'; rename one",
+                cat[j].name, c.name, c.key
+            )));
+        }
+    }
+
+    let mut refs = None;
+    if !cfg.dry_run && !cfg.prepare_only {
+        check_outputs(cfg, &cat)?;
+        // A reference that does not match is refused before any work is done.
+        if let Some(d) = &cfg.reference {
+            let named: Vec<(String, usize)> = cat
+                .iter()
+                .filter(|c| cfg.only.is_empty() || cfg.only.contains(&c.name))
+                .map(|c| (c.name.clone(), c.points))
+                .collect();
+            refs = Some(crate::accuracy::load_reference_named(d, &named)?);
+        }
+    }
+
+    // Parameters (as `pipeline::compute` derives them).
+    let prm = &cfg.compute;
+    let mut note = String::new();
+    let radius = match prm.radius {
+        Some(r) => r,
+        None => {
+            let diag = robust_diagonal(&samples);
+            let r = (diag / 50.0) as f32;
+            note += &format!("radius = scene diagonal {diag:.4} m / 50 = {r:.4} m; ");
+            r
+        }
+    };
+    drop(samples);
+    let tmax = match prm.tmax {
+        Some(t) => t,
+        None => {
+            note += "tmax = 2 × radius; ";
+            2.0 * radius
+        }
+    };
+    if !(radius > 0.0 && radius.is_finite()) {
+        return Err(Error::Param(format!(
+            "the SSAO radius must be a positive number of metres (got {radius}); give --radius"
+        )));
+    }
+    let sp = SsaoParams {
+        estimator: prm.estimator,
+        radius,
+        tmax,
+        samples: prm.samples,
+        directions: prm.directions,
+        steps: prm.steps,
+        seed: prm.seed,
+        blur: prm.blur,
+    };
+
+    // The plan. Pair skipping uses the SSAO reach here; eq. 7's reach (radii) is added once
+    // the radii are known.
+    let n = cat.len();
+    let b: Vec<(DVec3, DVec3)> = cat
+        .iter()
+        .map(|c| (DVec3::from(c.bounds[0]), DVec3::from(c.bounds[1])))
+        .collect();
+    let pair_meets = |i: usize, j: usize, reach: f64| {
+        let scale = (b[i].1 - b[i].0).length() + (b[j].1 - b[j].0).length();
+        overlaps(&b[i], &b[j], reach + 1e-6 * scale + 1e-9)
+    };
+    let mut kept = 0usize;
+    let mut point_views = 0u64;
+    for i in 0..n {
+        for j in 0..n {
+            if i == j || pair_meets(i, j, 2.0 * tmax as f64) {
+                if i != j {
+                    kept += 1;
+                }
+                point_views += cat[i].points as u64;
+            }
+        }
+    }
+    let vb: Vec<u64> = cat
+        .iter()
+        .map(|c| view_bytes(c.map_pixels, c.points as u64))
+        .collect();
+    let plan = Plan {
+        scans: cat.clone(),
+        pairs_kept: kept,
+        pairs_skipped: n * n.saturating_sub(1) - kept,
+        largest_view_bytes: vb.iter().copied().max().unwrap_or(0),
+        all_views_bytes: vb.iter().sum(),
+        budget_bytes: budget,
+        point_views,
+    };
+    // One input file's data and one view must fit beside the cache.
+    let floor = max_file_bytes * 3 + 2 * plan.largest_view_bytes;
+    if floor > budget {
+        warnings.push(format!(
+            "--max-memory {:.2} GiB is below what one input file and its view need (≈ {:.2} GiB); \
+             the run goes on with no map cached beyond the one in use",
+            budget as f64 / (1u64 << 30) as f64,
+            floor as f64 / (1u64 << 30) as f64
+        ));
+    }
+    let mut out = Outcome {
+        plan,
+        scans: Vec::new(),
+        ssao: sp,
+        merge: MergeParams {
+            neighbors: prm.neighbors,
+            dmin: 0.0,
+            dmax: 0.0,
+            border_px: prm.border_px,
+        },
+        defaults_note: note,
+        times,
+        bytes_read,
+        prepared: (0, 0),
+        map_loads: 0,
+        values: Vec::new(),
+        warnings,
+        refs,
+    };
+    if cfg.dry_run {
+        return Ok(out);
+    }
+
+    // Pass 2: prepare what is missing or stale.
+    std::fs::create_dir_all(&work_dir).map_err(|e| Error::io(&work_dir, e))?;
+    let mut manifest = Manifest::load(&work_dir);
+    out.warnings.extend(manifest.warnings.drain(..));
+    let selected = |c: &CatalogScan| cfg.only.is_empty() || cfg.only.contains(&c.name);
+    let params = |c: &CatalogScan| {
+        serde_json::json!({
+            "ssao": sp,
+            "projection": prm.projection,
+            "data": c.data_hash,
+        })
+    };
+    let t0 = Instant::now();
+    obs.stage("prepare", cat.iter().map(|c| c.points as u64).sum());
+    let mut prep_bytes = 0u64;
+    // With --only, merge needs the products of the selected scans and of their partners;
+    // `mvao prepare --only` makes just the selected ones.
+    let need: Vec<bool> = (0..n)
+        .map(|i| {
+            selected(&cat[i])
+                || (!cfg.prepare_only
+                    && (0..n).any(|j| selected(&cat[j]) && pair_meets(i, j, 2.0 * tmax as f64)))
+        })
+        .collect();
+    for fi in 0..placer.len() {
+        let stale: Vec<usize> = (0..n)
+            .filter(|&i| cat[i].file == fi && need[i])
+            .filter(|&i| {
+                !(manifest.is_fresh(&cat[i].key, &[&cfg.scans[fi]], &params(&cat[i]))
+                    && summary_path(&work_dir, &cat[i].key).is_file())
+            })
+            .collect();
+        out.prepared.1 += (0..n)
+            .filter(|&i| cat[i].file == fi && need[i] && !stale.contains(&i))
+            .count();
+        if stale.is_empty() {
+            obs.advance(cat.iter().filter(|c| c.file == fi).map(|c| c.points as u64).sum());
+            continue;
+        }
+        // Fingerprint the input before reading it, so a change during the run is caught.
+        let rec = InputRecord::capture(&cfg.scans[fi])?;
+        let pf = placer.open(fi)?;
+        prep_bytes += rec.size;
+        for &i in &stale {
+            let s = &pf.scans[cat[i].index];
+            if data_hash(s) != cat[i].data_hash {
+                return Err(Error::Param(format!(
+                    "{}: changed while mvao was running; run again",
+                    cfg.scans[fi].display()
+                )));
+            }
+            let v = prepare_view(s, prm.projection, &sp)?;
+            let files = work::save_view(&work_dir, &cat[i].key, &v)?;
+            let (mut dmin, mut dmax) = (f32::INFINITY, 0f32);
+            for &d in &v.depth {
+                if d.is_finite() {
+                    dmin = dmin.min(d);
+                    dmax = dmax.max(d);
+                }
+            }
+            let (_, no_sample) = v.point_ssao();
+            let proj = &v.sensor.projection;
+            let sum = Summary {
+                points: s.len(),
+                max_radius: v.radii.iter().copied().fold(0.0, f32::max),
+                depth_min: dmin,
+                depth_max: dmax,
+                ortho: proj.sensor_model() == crate::projection::SensorModel::Ortho,
+                no_sample,
+                filled: v.gbuf.filled(),
+                sensor_model: proj.sensor_model().to_string(),
+                map_size: [proj.width, proj.height],
+                native_grid: v.sensor.grid_pixels.is_some(),
+                fit_rms_px: v.sensor.fit_rms_px,
+                reason: v.sensor.reason.clone(),
+                normals: v.normals_note.clone(),
+                times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
+            };
+            let json = serde_json::to_vec(&sum)
+                .map_err(|e| Error::Param(format!("cannot encode a summary: {e}")))?;
+            crate::io::atomic::write_atomic(&summary_path(&work_dir, &cat[i].key), |w| {
+                std::io::Write::write_all(w, &json)
+            })?;
+            // The manifest entry is the commit point: written last.
+            manifest.record(&cat[i].key, std::slice::from_ref(&rec), &params(&cat[i]), &files)?;
+            out.prepared.0 += 1;
+            obs.advance(s.len() as u64);
+        }
+    }
+    let _ = manifest.save();
+    obs.done("prepare", t0.elapsed().as_secs_f64());
+    out.times.push(("prepare".into(), t0.elapsed().as_secs_f64()));
+    out.bytes_read.push(("prepare".into(), prep_bytes));
+    if cfg.prepare_only {
+        return Ok(out);
+    }
+
+    // Summaries of every scan the merge touches.
+    let mut sums: Vec<Option<Summary>> = vec![None; n];
+    for i in (0..n).filter(|&i| need[i]) {
+        let p = summary_path(&work_dir, &cat[i].key);
+        let s: Summary = std::fs::read(&p)
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
+            .ok_or_else(|| {
+                Error::Param(format!(
+                    "{}: missing or damaged; run `mvao prepare` for scan '{}' again",
+                    p.display(),
+                    cat[i].name
+                ))
+            })?;
+        sums[i] = Some(s);
+    }
+    let (mut dmin, mut dmax) = (f32::INFINITY, 0.0f32);
+    let mut any_persp = false;
+    for s in sums.iter().flatten().filter(|s| !s.ortho) {
+        any_persp = true;
+        dmin = dmin.min(s.depth_min);
+        dmax = dmax.max(s.depth_max);
+    }
+    if !dmin.is_finite() {
+        dmin = 0.0;
+    }
+    out.merge.dmin = prm.dmin.unwrap_or(dmin);
+    out.merge.dmax = prm.dmax.unwrap_or(dmax);
+    if !any_persp {
+        out.defaults_note += "dmin/dmax unused: every view is orthographic (w_d = 1)";
+    } else if prm.dmin.is_none() || prm.dmax.is_none() {
+        out.defaults_note +=
+            "dmin/dmax = smallest/largest depth over all scans with a sensor position";
+    }
+    let mp = out.merge;
+    let max_rad: Vec<f64> = sums
+        .iter()
+        .map(|s| s.as_ref().map_or(0.0, |s| s.max_radius as f64))
+        .collect();
+
+    // Pass 3: merge, one input file at a time.
+    std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
+    let t0 = Instant::now();
+    let total: u64 = (0..n)
+        .filter(|&i| selected(&cat[i]))
+        .map(|i| cat[i].points as u64)
+        .sum();
+    obs.stage("merge", total);
+    let wopts = WriteOptions {
+        gamma: cfg.gamma,
+        color: cfg.color,
+    };
+    let comment = format!(
+        "mvao {} {}: ao = {} (1 = open)",
+        env!("CARGO_PKG_VERSION"),
+        if prm.ssao_only { "ssao-only" } else { "merge" },
+        match sp.estimator {
+            crate::ssao::Estimator::Paper => "paper estimator",
+            crate::ssao::Estimator::Horizon => "horizon estimator",
+        }
+    );
+    let mut merge_read = 0u64;
+    // The cache gets what the budget leaves beside one input file's data and its own view.
+    let mut cache = MapCache {
+        budget: budget.saturating_sub(max_file_bytes * 3 + 2 * out.plan.largest_view_bytes),
+        used: 0,
+        tick: 0,
+        maps: HashMap::new(),
+        loads: 0,
+        bytes_read: 0,
+    };
+    for fi in 0..placer.len() {
+        let mine: Vec<usize> = (0..n)
+            .filter(|&i| cat[i].file == fi && selected(&cat[i]))
+            .collect();
+        if mine.is_empty() {
+            continue;
+        }
+        let pf = placer.open(fi)?;
+        merge_read += std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len());
+        let mut aos: Vec<Vec<f32>> = vec![Vec::new(); pf.scans.len()];
+        for &i in &mine {
+            let s = &pf.scans[cat[i].index];
+            let own = work::load_view(&work_dir, &cat[i].key)?;
+            merge_read += view_bytes(
+                (own.gbuf.width * own.gbuf.height) as u64,
+                s.len() as u64,
+            );
+            let (own_ssao, no_sample) = own.point_ssao();
+            let (ao, st) = if prm.ssao_only {
+                (own_ssao.clone(), MergeStats::default())
+            } else {
+                let t = Target {
+                    index: i,
+                    points: &s.points,
+                    radii: &own.radii,
+                    own_pixel: &own.pixel,
+                    pose: s.pose,
+                    proj: &own.sensor.projection,
+                };
+                let mut acc = Accum::new(s.len());
+                for j in 0..n {
+                    if j != i {
+                        let reach = (2.0 * tmax as f64).max(2.0 * max_rad[i].max(max_rad[j]));
+                        if !pair_meets(i, j, reach) {
+                            continue;
+                        }
+                    }
+                    let pose_j = if j == i { s.pose } else { cat[j].pose };
+                    if j == i {
+                        let v = merge::View {
+                            proj: &own.sensor.projection,
+                            gbuf: &own.gbuf,
+                            ao: &own.ssao.ao,
+                            border: &own.border,
+                            pose: pose_j,
+                        };
+                        merge::accumulate(&mut acc, &t, j, &v, &mp, &|_| {});
+                    } else {
+                        let m = cache.get(j, &work_dir, &cat[j].key)?;
+                        merge::accumulate(&mut acc, &t, j, &m.view(pose_j), &mp, &|_| {});
+                    }
+                }
+                acc.finish(&own_ssao)
+            };
+            obs.advance(s.len() as u64);
+            if cfg.preview {
+                let g = &own.gbuf;
+                let vals: Vec<Option<f32>> = g
+                    .point
+                    .iter()
+                    .map(|&p| (p != EMPTY).then(|| ao[p as usize]))
+                    .collect();
+                write_preview(
+                    &cfg.out_dir.join(format!("{}.png", s.name)),
+                    g.width,
+                    g.height,
+                    &vals,
+                    cfg.gamma,
+                )?;
+            }
+            let sum = sums[i]
+                .clone()
+                .ok_or_else(|| Error::Param("summary missing (internal error)".into()))?;
+            let (mn, mx, total) = ao
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
+                    (a.0.min(v), a.1.max(v), a.2 + v as f64)
+                });
+            out.scans.push(ScanReport {
+                name: s.name.clone(),
+                input: cfg.scans[fi].display().to_string(),
+                output: String::new(),
+                vertices: s.vertex_count,
+                points: s.len(),
+                skipped_nonfinite: s.skipped_nonfinite,
+                sensor_model: sum.sensor_model.clone(),
+                map_size: sum.map_size,
+                map_filled: sum.filled,
+                native_grid: sum.native_grid,
+                grid_fit_rms_px: sum.fit_rms_px,
+                sensor_reason: sum.reason.clone(),
+                normals: sum.normals.clone(),
+                no_ssao_sample: no_sample,
+                zero_merge_weight: st.zero_weight,
+                point_views: st.point_views,
+                ao_min: mn,
+                ao_mean: (total / s.len().max(1) as f64) as f32,
+                ao_max: mx,
+            });
+            if keep_values {
+                out.values.push((s.name.clone(), own_ssao, ao.clone()));
+            }
+            aos[cat[i].index] = ao;
+        }
+        // Write this file's outputs (whole files only: with --only every scan of a
+        // multi-scan file must be selected).
+        let ds = Dataset {
+            scans: pf.scans,
+            origin: (0..aos.len()).map(|k| (0, k)).collect(),
+            file_to_world: pf.file_to_world,
+            pose_source: pf.pose_source,
+            alignment: None,
+            warnings: Vec::new(),
+            files: vec![pf.file],
+        };
+        let units = results::plan(&ds, cfg.format, &cfg.out_dir)?;
+        for u in &units {
+            if u.scans.iter().all(|&k| !aos[k].is_empty()) {
+                results::write(u, &ds, &aos, wopts, &comment)?;
+                for &k in &u.scans {
+                    if let Some(r) = out.scans.iter_mut().find(|r| r.name == ds.scans[k].name) {
+                        r.output = u.path.display().to_string();
+                    }
+                }
+            } else if u.scans.iter().any(|&k| !aos[k].is_empty()) {
+                out.warnings.push(format!(
+                    "{}: not written, --only selected some but not all of its scans",
+                    u.path.display()
+                ));
+            }
+        }
+    }
+    out.map_loads = cache.loads;
+    merge_read += cache.bytes_read;
+    obs.done("merge", t0.elapsed().as_secs_f64());
+    out.times.push(("merge".into(), t0.elapsed().as_secs_f64()));
+    out.bytes_read.push(("merge".into(), merge_read));
+    Ok(out)
+}
