@@ -621,6 +621,22 @@ fn bad_input_is_an_error_or_open_never_nan() {
 }
 
 #[test]
+fn nearest_hit_finds_the_wall() {
+    let (scene, _, _, _) = corner_scene();
+    // From the floor towards the wall at x = 0.2.
+    let o = Vec3::new(0.0, 0.0, 0.1);
+    for tmax in [1.0, INF] {
+        let t = scene.nearest_hit(o, Vec3::X, 0.01, tmax).unwrap();
+        assert!((t - 0.2).abs() < 1e-5, "{t}");
+    }
+    assert_eq!(scene.nearest_hit(o, Vec3::X, 0.01, 0.15), None);
+    assert_eq!(scene.nearest_hit(o, Vec3::NEG_X, 0.01, INF), None);
+    // Straight down onto the floor (seen from its front).
+    let t = scene.nearest_hit(o, Vec3::NEG_Z, 0.01, INF).unwrap();
+    assert!((t - 0.1).abs() < 1e-5, "{t}");
+}
+
+#[test]
 fn rho_is_the_smoothstep() {
     assert_eq!(rho(0.0, 0.4), 0.0);
     assert_eq!(rho(0.2, 0.4), 0.5);
