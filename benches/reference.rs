@@ -2,7 +2,8 @@
 //! ≈1M points each, 2 mm range noise, exact normals, radii from the native grid): all
 //! three scans as surfels in one scene, query points = every `STEP`-th point of station 0.
 //! `cargo bench --bench reference` prints build time and rays/s for t_max = 0.4 m and ∞.
-//! `MVAO_BENCH_STEP=1` traces every point of station 0. The machine is shared: rays per
+//! `MVAO_BENCH_STEP=1` traces every point of station 0, `MVAO_BENCH_RAYS=R` casts R rays per
+//! point (default 64). The machine is shared: rays per
 //! CPU-second (user + system time of this process) is the steadier figure.
 
 use mvao::projection::SensorModel;
@@ -72,7 +73,11 @@ fn main() {
         "query: every {step}th point of station 0 = {} points",
         pts.len()
     );
-    for (tmax, rays) in [(0.4f32, 64u32), (f32::INFINITY, 64)] {
+    let rays: u32 = std::env::var("MVAO_BENCH_RAYS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(64);
+    for tmax in [0.4f32, f32::INFINITY] {
         let prm = RefParams {
             rays,
             tmax,

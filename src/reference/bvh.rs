@@ -11,8 +11,9 @@ pub(crate) trait Primitive: Copy + Send + Sync {
     fn bounds(&self) -> (Vec3, Vec3);
     /// Nearest accepted hit with `t ∈ (0, t_hi)`, if any.
     fn hit(&self, ray: &Ray, t_hi: f32) -> Option<f32>;
-    /// Whether some point of the primitive lies in the open half-space `n·(x − o) > 0`.
-    fn above(&self, o: Vec3, n: Vec3) -> bool;
+    /// False when no ray from `o` into the half-space `n·(x − o) > 0` can get an accepted
+    /// hit on the primitive (for a query point of radius `r_self`); true when unsure.
+    fn can_hit(&self, o: Vec3, n: Vec3, r_self: f32) -> bool;
 }
 
 /// A ray with what the primitives need to recognise the query point's own surface.

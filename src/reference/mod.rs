@@ -351,8 +351,8 @@ impl Scene {
         let pat = Pattern::new(prm.seed, index, n, az);
         // The traversal needs a finite far end (empty child slots sit at +∞).
         let far = prm.tmax.min(f32::MAX);
-        self.surfels.origin(o, n, far, &mut ctx.surfels);
-        self.tris.origin(o, n, far, &mut ctx.tris);
+        self.surfels.origin(o, n, r, far, &mut ctx.surfels);
+        self.tris.origin(o, n, r, far, &mut ctx.tris);
         let (cs, ct, st) = (&ctx.surfels, &ctx.tris, &mut ctx.stack);
         let mut sum = 0.0f32;
         if prm.tmax == f32::INFINITY {

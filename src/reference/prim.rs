@@ -47,9 +47,17 @@ impl Primitive for Surfel {
     }
 
     #[inline]
-    fn above(&self, o: Vec3, n: Vec3) -> bool {
+    fn can_hit(&self, o: Vec3, n: Vec3, r_self: f32) -> bool {
+        // Entirely below the tangent plane at o?
         let c = n.dot(self.n);
-        n.dot(self.c - o) + self.r * (1.0 - c * c).max(0.0).sqrt() > 0.0
+        if !(n.dot(self.c - o) + self.r * (1.0 - c * c).max(0.0).sqrt() > 0.0) {
+            return false;
+        }
+        // With o behind the disk's plane every hit is a back hit, at a distance of at most
+        // |c − o| + r: all ignored when that is inside the back-hit range (with a margin
+        // for rounding).
+        let behind = (o - self.c).dot(self.n) <= 0.0;
+        !(behind && (self.c - o).length() + self.r < 0.99 * BACK_NEAR * (r_self + self.r))
     }
 }
 
@@ -93,7 +101,7 @@ impl Primitive for Triangle {
     }
 
     #[inline]
-    fn above(&self, o: Vec3, n: Vec3) -> bool {
+    fn can_hit(&self, o: Vec3, n: Vec3, _r_self: f32) -> bool {
         let a = n.dot(self.v0 - o);
         a > 0.0 || a + n.dot(self.e1) > 0.0 || a + n.dot(self.e2) > 0.0
     }

@@ -226,8 +226,8 @@ impl<P: Primitive> Bvh<P> {
     }
 
     /// Gathers what every ray from `o` into the half-space `n·(x − o) > 0` shares (see
-    /// [`Origin`]). `t_max` finite.
-    pub fn origin(&self, o: Vec3, n: Vec3, t_max: f32, ctx: &mut Origin) {
+    /// [`Origin`]) for a query point of radius `r_self`. `t_max` finite.
+    pub fn origin(&self, o: Vec3, n: Vec3, r_self: f32, t_max: f32, ctx: &mut Origin) {
         ctx.near_len = 0;
         ctx.front_len = 0;
         ctx.whole = false;
@@ -245,12 +245,16 @@ impl<P: Primitive> Bvh<P> {
                     continue;
                 }
                 let (lo, hi) = node.slot_box(k);
-                if lo.cmple(o).all() && o.cmple(hi).all() {
-                    // Every ray starts inside this box.
+                let Some(d) = reach(lo, hi, o, n) else {
+                    continue;
+                };
+                if d == 0.0 {
+                    // Every ray starts inside this box: open it. The primitives of such leaves
+                    // are culled once for all rays (most are the point's own surface).
                     if node.count[k] > 0 {
                         let first = node.child[k] as usize;
                         for i in first..first + node.count[k] as usize {
-                            if self.prims[i].above(o, n) {
+                            if self.prims[i].can_hit(o, n, r_self) {
                                 if ctx.near_len == NEAR_CAP {
                                     ctx.whole = true;
                                     return;
@@ -267,21 +271,19 @@ impl<P: Primitive> Bvh<P> {
                         walk[sp] = node.child[k];
                         sp += 1;
                     }
-                } else if let Some(d) = reach(lo, hi, o, n) {
-                    if d < t_max {
-                        if nf == FRONT_CAP {
-                            ctx.whole = true;
-                            return;
-                        }
-                        ctx.scratch[nf] = Front {
-                            dist: d,
-                            lo,
-                            hi,
-                            child: node.child[k],
-                            count: node.count[k],
-                        };
-                        nf += 1;
+                } else if d < t_max {
+                    if nf == FRONT_CAP {
+                        ctx.whole = true;
+                        return;
                     }
+                    ctx.scratch[nf] = Front {
+                        dist: d,
+                        lo,
+                        hi,
+                        child: node.child[k],
+                        count: node.count[k],
+                    };
+                    nf += 1;
                 }
             }
         }
@@ -443,8 +445,9 @@ impl Front {
 }
 
 /// What all rays from one origin share, computed once per query point: the primitives of
-/// the leaves whose box contains the origin (every ray starts inside them) that reach above
-/// the origin's tangent plane, and the other subtrees hanging off the paths to them, sorted
+/// the leaves whose box contains the origin (every ray starts inside them) that some ray
+/// could hit ([`Primitive::can_hit`]), and the other subtrees hanging off the paths to them,
+/// sorted
 /// by distance from the origin (boxes in groups of four for SIMD tests) so a ray stops as
 /// soon as the next group is farther than its nearest hit. Subtrees entirely below the
 /// tangent plane or beyond `t_max` are dropped once for all rays. Fixed capacity, no
@@ -498,7 +501,7 @@ mod tests {
             let tf = lo.max(hi).min_element();
             (tn <= tf && tn > 0.0 && tn < t_hi).then_some(tn)
         }
-        fn above(&self, o: Vec3, n: Vec3) -> bool {
+        fn can_hit(&self, o: Vec3, n: Vec3, _r_self: f32) -> bool {
             reach(self.0 - 0.5, self.0 + 0.5, o, n).is_some()
         }
     }
@@ -543,7 +546,7 @@ mod tests {
                 cubes[(rnd() * 4999.0) as usize].0 + (Vec3::new(rnd(), rnd(), rnd()) - 0.5) * 0.8;
             let n = (Vec3::new(rnd(), rnd(), rnd()) - 0.5).normalize();
             for tmax in [3.0f32, 30.0, f32::MAX] {
-                bvh.origin(o, n, tmax, &mut ctx);
+                bvh.origin(o, n, 0.3, tmax, &mut ctx);
                 for _ in 0..20 {
                     let mut d = (Vec3::new(rnd(), rnd(), rnd()) - 0.5).normalize();
                     if d.dot(n) <= 0.0 {
@@ -594,7 +597,7 @@ mod tests {
             let ray = Ray::new(Vec3::new(0.0, 0.0, -5.0), Vec3::Z, 0.0);
             assert_eq!(bvh.trace::<false>(&ray, f32::MAX, &mut st), 4.5);
             let mut ctx = Origin::default();
-            bvh.origin(ray.o, Vec3::Z, f32::MAX, &mut ctx);
+            bvh.origin(ray.o, Vec3::Z, 0.0, f32::MAX, &mut ctx);
             assert_eq!(
                 bvh.trace_origin::<false>(&ctx, &ray, f32::MAX, &mut st),
                 4.5
@@ -605,6 +608,54 @@ mod tests {
             empty.trace::<false>(&Ray::new(Vec3::ZERO, Vec3::Z, 0.0), 7.0, &mut st),
             7.0
         );
+    }
+
+    #[test]
+    fn origin_lists_with_surfel_culling_match_whole_tree_traversal() {
+        use crate::reference::prim::Surfel;
+        // A noisy plane of overlapping disks (two interleaved "scans" of different radii)
+        // and a bump: the cases where neighbours are culled per origin.
+        let mut rnd = rng(99);
+        let mut s = Vec::new();
+        for i in 0..80 {
+            for j in 0..80 {
+                let (x, y) = (i as f32 * 0.01, j as f32 * 0.01);
+                let bump = 0.05 * (-((x - 0.4).powi(2) + (y - 0.4).powi(2)) / 0.01).exp();
+                let z = bump + (rnd() - 0.5) * 0.004;
+                let r = if (i + j) % 2 == 0 { 0.011 } else { 0.02 };
+                let n = (Vec3::new(0.0, 0.0, 1.0) + (Vec3::new(rnd(), rnd(), 0.0) - 0.5) * 0.1)
+                    .normalize();
+                s.push(Surfel {
+                    c: Vec3::new(x, y, z),
+                    r2: r * r,
+                    n,
+                    r,
+                });
+            }
+        }
+        let bvh = Bvh::build(s.clone());
+        let mut ctx = Origin::default();
+        let mut st = Stack::default();
+        let mut hits = 0;
+        for q in s.iter().step_by(37) {
+            let o = q.c + q.n * (0.01 * q.r);
+            for tmax in [0.1f32, f32::MAX] {
+                bvh.origin(o, q.n, q.r, tmax, &mut ctx);
+                for _ in 0..16 {
+                    let mut d = (Vec3::new(rnd(), rnd(), rnd()) - 0.5).normalize();
+                    if d.dot(q.n) <= 0.0 {
+                        d = -d;
+                    }
+                    let ray = Ray::new(o, d, q.r);
+                    let want = bvh.trace::<false>(&ray, tmax, &mut st);
+                    hits += (want < tmax) as usize;
+                    assert_eq!(bvh.trace_origin::<false>(&ctx, &ray, tmax, &mut st), want);
+                    let any = bvh.trace_origin::<true>(&ctx, &ray, tmax, &mut st);
+                    assert_eq!(any < tmax, want < tmax);
+                }
+            }
+        }
+        assert!(hits > 100, "{hits}");
     }
 
     #[test]
