@@ -74,13 +74,15 @@ use wide::{Bvh, Origin, Stack};
 pub const ORIGIN_OFFSET: f32 = 0.01;
 /// Rays per point of the default parameters.
 pub const DEFAULT_RAYS: u32 = 256;
+/// Most rays per point accepted (the convergence check casts four times as many).
+pub const MAX_RAYS: u32 = 1 << 20;
 /// Points in the default convergence sample.
 pub const DEFAULT_SAMPLE: usize = 2000;
 
 /// What [`obscurance`] computes.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct RefParams {
-    /// Rays per point (≥ 1).
+    /// Rays per point (1 ..= [`MAX_RAYS`]).
     pub rays: u32,
     /// Falloff distance of ρ in the scene frame's units (> 0; `f32::INFINITY` = plain
     /// cosine-weighted ambient occlusion).
@@ -102,8 +104,11 @@ impl Default for RefParams {
 
 impl RefParams {
     fn check(&self) -> Result<()> {
-        if self.rays == 0 {
-            return Err(Error::Param("reference: rays must be at least 1".into()));
+        if self.rays == 0 || self.rays > MAX_RAYS {
+            return Err(Error::Param(format!(
+                "reference: rays must be in 1..={MAX_RAYS}, got {}",
+                self.rays
+            )));
         }
         if !(self.tmax > 0.0) {
             return Err(Error::Param(format!(

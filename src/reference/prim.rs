@@ -31,16 +31,18 @@ impl Primitive for Surfel {
     #[inline(always)]
     fn hit(&self, ray: &Ray, t_hi: f32) -> Option<f32> {
         let denom = ray.d.dot(self.n);
-        // A ray parallel to the disk gives ±inf or NaN, rejected by the range test.
-        let t = (self.c - ray.o).dot(self.n) / denom;
-        if !(t > 0.0 && t < t_hi) {
+        let num = (self.c - ray.o).dot(self.n);
+        // t = num/denom in (0, t_hi) without dividing first: most candidates fail here or
+        // on the back-hit rule. A ray parallel to the disk (denom = 0) fails too.
+        if !(num * denom > 0.0 && num.abs() < t_hi * denom.abs()) {
+            return None;
+        }
+        let t = num / denom;
+        if !(t < t_hi) || (denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r)) {
             return None;
         }
         let q = ray.o + ray.d * t - self.c;
         if q.length_squared() > self.r2 {
-            return None;
-        }
-        if denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r) {
             return None;
         }
         Some(t)
