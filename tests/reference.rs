@@ -696,3 +696,88 @@ fn real_scan_surfels_and_grid_triangles_agree() {
     assert!(mean(&d).abs() < 0.02);
     assert!(mean_abs < 0.05);
 }
+
+/// The surfel reference of the synthetic room (three stations, exact ranges) against
+/// obscurance ray-cast on the room's exact analytic geometry: the surfel model itself is
+/// close to the surface it samples.
+#[test]
+fn synthetic_room_matches_its_analytic_geometry() {
+    use mvao::projection::SensorModel;
+    use mvao::synth::{scan_scene, station_layout, SceneKind};
+    let room = SceneKind::Room.scene();
+    let stations = station_layout(SceneKind::Room, SensorModel::Equirect, 3, 480, 240);
+    let scans: Vec<_> = stations
+        .iter()
+        .enumerate()
+        .map(|(i, st)| {
+            let mut s = scan_scene(&room, st, 0.0, i as u64, &format!("s{i}"));
+            s.pose = st.pose();
+            s
+        })
+        .collect();
+    let mut b = Scene::builder(scans[0].pose);
+    let mut radii0 = Vec::new();
+    for s in &scans {
+        let g = s.grid.as_ref().unwrap();
+        let (_, r) = mvao::scan::normals::estimate_grid(&s.points, g, false, |p| -p);
+        b.add_surfels(&s.name, s.pose, &s.points, s.normals.as_ref().unwrap(), &r)
+            .unwrap();
+        if radii0.is_empty() {
+            radii0 = r;
+        }
+    }
+    let scene = b.build();
+    let s0 = &scans[0];
+    let idx: Vec<usize> = (0..s0.len()).step_by(211).collect();
+    let p: Vec<Vec3> = idx.iter().map(|&i| s0.points[i]).collect();
+    let n: Vec<Vec3> = idx
+        .iter()
+        .map(|&i| s0.normals.as_ref().unwrap()[i])
+        .collect();
+    let r: Vec<f32> = idx.iter().map(|&i| radii0[i]).collect();
+    let (rays, tmax) = (256u32, 0.4f32);
+    let a = obscurance(&scene, &p, &n, &r, &prm(rays, tmax), &|_| {}).unwrap();
+    // Exact geometry, same estimator (stratified cosine-weighted directions), in f64.
+    let exact: Vec<f32> = p
+        .iter()
+        .zip(&n)
+        .map(|(p, n)| {
+            let pw = s0.pose.transform_point3(p.as_dvec3());
+            let nw = s0.pose.transform_vector3(n.as_dvec3()).normalize();
+            let (t, b) = nw.any_orthonormal_pair();
+            let o = pw + nw * 1e-6;
+            let mut sum = 0.0;
+            for j in 0..rays {
+                let u1 = (j as f64 + 0.5) / rays as f64;
+                let phi = std::f64::consts::TAU * (j as f64 * 0.618_033_988_749_895).fract();
+                let d = t * (u1.sqrt() * phi.cos())
+                    + b * (u1.sqrt() * phi.sin())
+                    + nw * (1.0 - u1).sqrt();
+                let hit = room.intersect_range(o, d, 1e-9, tmax as f64);
+                sum += hit.map_or(1.0, |h| rho(h.t as f32, tmax) as f64);
+            }
+            (sum / rays as f64) as f32
+        })
+        .collect();
+    let d: Vec<f32> = a.iter().zip(&exact).map(|(x, y)| x - y).collect();
+    let mean_abs = d.iter().map(|x| x.abs() as f64).sum::<f64>() / d.len() as f64;
+    let shaded = exact.iter().filter(|&&x| x < 0.9).count();
+    let shaded_abs = d
+        .iter()
+        .zip(&exact)
+        .filter(|(_, &x)| x < 0.9)
+        .map(|(x, _)| x.abs() as f64)
+        .sum::<f64>()
+        / shaded.max(1) as f64;
+    println!(
+        "room 3×480×240: {} points ({shaded} shaded, mean |diff| there {shaded_abs:.4}), mean A surfels {:.4} exact {:.4}, mean diff {:.4}, mean |diff| {mean_abs:.4}",
+        p.len(),
+        mean(&a),
+        mean(&exact),
+        mean(&d)
+    );
+    assert!(shaded > 20);
+    assert!(mean(&d).abs() < 0.01, "{}", mean(&d));
+    assert!(mean_abs < 0.03, "{mean_abs}");
+    assert!(shaded_abs < 0.06, "{shaded_abs}");
+}
