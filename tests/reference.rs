@@ -617,6 +617,10 @@ fn bad_input_is_an_error_or_open_never_nan() {
         (s.surfel_count(), s.triangle_count(), s.skipped()),
         (1, 0, 4)
     );
+    let mut bad_frame = Scene::builder(DMat4::ZERO);
+    assert!(bad_frame
+        .add_surfels("s", DMat4::IDENTITY, &p, &n, &r)
+        .is_err());
     // An empty scene is open everywhere.
     let empty = Scene::builder(DMat4::IDENTITY).build();
     let a = obscurance(&empty, &p, &n, &r, &pr, &|_| {}).unwrap();

@@ -158,6 +158,12 @@ pub struct Scene {
 
 /// `frame⁻¹ · pose` in f64 and its normal matrix, or an error naming `name`.
 fn relative(frame_inv: DMat4, pose: DMat4, name: &str) -> Result<(DMat4, DMat3)> {
+    if !frame_inv.is_finite() {
+        return Err(Error::scan(
+            name,
+            "reference scene frame is not a finite invertible transform",
+        ));
+    }
     if !pose.is_finite() {
         return Err(Error::scan(name, "pose is not finite"));
     }
@@ -172,11 +178,12 @@ fn relative(frame_inv: DMat4, pose: DMat4, name: &str) -> Result<(DMat4, DMat3)>
 
 impl SceneBuilder {
     /// An empty scene whose f32 frame is `frame`'s local frame (`frame` maps it to world).
+    /// A frame that is not finite and invertible makes every `add_*` call an error.
     pub fn new(frame: DMat4) -> SceneBuilder {
         let frame_inv = if frame.is_finite() && frame.determinant().abs() > 1e-12 {
             frame.inverse()
         } else {
-            DMat4::IDENTITY
+            DMat4::from_cols_array(&[f64::NAN; 16])
         };
         SceneBuilder {
             frame,
