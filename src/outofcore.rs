@@ -340,7 +340,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     for fi in 0..placer.len() {
         let pf = placer.open(fi)?;
         warnings.extend(pf.warnings);
-        max_file_bytes = max_file_bytes.max(std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
+        max_file_bytes =
+            max_file_bytes.max(std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
         for (k, s) in pf.scans.iter().enumerate() {
             if s.is_empty() {
                 return Err(Error::scan(
@@ -542,7 +543,12 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             .filter(|&i| cat[i].file == fi && need[i] && !stale.contains(&i))
             .count();
         if stale.is_empty() {
-            obs.advance(cat.iter().filter(|c| c.file == fi).map(|c| c.points as u64).sum());
+            obs.advance(
+                cat.iter()
+                    .filter(|c| c.file == fi)
+                    .map(|c| c.points as u64)
+                    .sum(),
+            );
             continue;
         }
         // Fingerprint the input before reading it, so a change during the run is caught.
@@ -590,14 +596,20 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 std::io::Write::write_all(w, &json)
             })?;
             // The manifest entry is the commit point: written last.
-            manifest.record(&cat[i].key, std::slice::from_ref(&rec), &params(&cat[i]), &files)?;
+            manifest.record(
+                &cat[i].key,
+                std::slice::from_ref(&rec),
+                &params(&cat[i]),
+                &files,
+            )?;
             out.prepared.0 += 1;
             obs.advance(s.len() as u64);
         }
     }
     let _ = manifest.save();
     obs.done("prepare", t0.elapsed().as_secs_f64());
-    out.times.push(("prepare".into(), t0.elapsed().as_secs_f64()));
+    out.times
+        .push(("prepare".into(), t0.elapsed().as_secs_f64()));
     out.bytes_read.push(("prepare".into(), prep_bytes));
     if cfg.prepare_only {
         return Ok(out);
@@ -687,10 +699,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         for &i in &mine {
             let s = &pf.scans[cat[i].index];
             let own = work::load_view(&work_dir, &cat[i].key)?;
-            merge_read += view_bytes(
-                (own.gbuf.width * own.gbuf.height) as u64,
-                s.len() as u64,
-            );
+            merge_read += view_bytes((own.gbuf.width * own.gbuf.height) as u64, s.len() as u64);
             let (own_ssao, no_sample) = own.point_ssao();
             let (ao, st) = if prm.ssao_only {
                 (own_ssao.clone(), MergeStats::default())

@@ -652,7 +652,11 @@ pub fn run(cfg: &Config) -> Result<Report> {
             }
             eprintln!(
                 "{} vs reference: {}",
-                if cfg.compute.ssao_only { "result" } else { "MVAO" },
+                if cfg.compute.ssao_only {
+                    "result"
+                } else {
+                    "MVAO"
+                },
                 acc.result.one_line()
             );
         }

@@ -549,6 +549,12 @@ fn bad_input_is_an_error_or_open_never_nan() {
     let pr = prm(16, 0.4);
     assert!(obscurance(&scene, &p, &n[..1], &r, &pr, &|_| {}).is_err());
     assert!(obscurance(&scene, &p, &n, &r, &RefParams { rays: 0, ..pr }, &|_| {}).is_err());
+    let huge = RefParams {
+        rays: u32::MAX,
+        ..pr
+    };
+    assert!(obscurance(&scene, &p, &n, &r, &huge, &|_| {}).is_err());
+    assert!(reference::convergence(&scene, &p, &n, &r, &huge, 10).is_err());
     for t in [0.0, -1.0, f32::NAN] {
         assert!(obscurance(&scene, &p, &n, &r, &RefParams { tmax: t, ..pr }, &|_| {}).is_err());
     }
@@ -611,6 +617,10 @@ fn bad_input_is_an_error_or_open_never_nan() {
         (s.surfel_count(), s.triangle_count(), s.skipped()),
         (1, 0, 4)
     );
+    let mut bad_frame = Scene::builder(DMat4::ZERO);
+    assert!(bad_frame
+        .add_surfels("s", DMat4::IDENTITY, &p, &n, &r)
+        .is_err());
     // An empty scene is open everywhere.
     let empty = Scene::builder(DMat4::IDENTITY).build();
     let a = obscurance(&empty, &p, &n, &r, &pr, &|_| {}).unwrap();
@@ -618,6 +628,22 @@ fn bad_input_is_an_error_or_open_never_nan() {
     assert!(obscurance(&empty, &[], &[], &[], &pr, &|_| {})
         .unwrap()
         .is_empty());
+}
+
+#[test]
+fn nearest_hit_finds_the_wall() {
+    let (scene, _, _, _) = corner_scene();
+    // From the floor towards the wall at x = 0.2.
+    let o = Vec3::new(0.0, 0.0, 0.1);
+    for tmax in [1.0, INF] {
+        let t = scene.nearest_hit(o, Vec3::X, 0.01, tmax).unwrap();
+        assert!((t - 0.2).abs() < 1e-5, "{t}");
+    }
+    assert_eq!(scene.nearest_hit(o, Vec3::X, 0.01, 0.15), None);
+    assert_eq!(scene.nearest_hit(o, Vec3::NEG_X, 0.01, INF), None);
+    // Straight down onto the floor (seen from its front).
+    let t = scene.nearest_hit(o, Vec3::NEG_Z, 0.01, INF).unwrap();
+    assert!((t - 0.1).abs() < 1e-5, "{t}");
 }
 
 #[test]
@@ -630,4 +656,132 @@ fn rho_is_the_smoothstep() {
     assert_eq!(rho(INF, INF), 1.0);
     // x = 0.25: 0.0625·2.5 = 0.15625.
     assert!((rho(0.1, 0.4) - 0.15625).abs() < 1e-6);
+}
+
+/// A real range scan (the Stanford bunny, front view, with its native grid): the reference
+/// from surfels of `rad(p)` and from the triangulated grid agree.
+#[test]
+fn real_scan_surfels_and_grid_triangles_agree() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/stanford-bunny/bun000.ply");
+    let (scan, _) = mvao::io::scan_ply::read_scan(&path).unwrap();
+    let grid = scan.grid.as_ref().expect("bun000 has a range grid");
+    // Orthographic scanner looking along −z: the sensor is towards +z.
+    let (normals, radii) =
+        mvao::scan::normals::estimate_grid(&scan.points, grid, true, |_| Vec3::Z);
+    let normals = normals.unwrap();
+    let tris = triangulate_grid(&scan.points, grid).unwrap();
+    let mut b = Scene::builder(scan.pose);
+    b.add_surfels("bun000", scan.pose, &scan.points, &normals, &radii)
+        .unwrap();
+    let surf = b.build();
+    let mut b = Scene::builder(scan.pose);
+    b.add_triangles("bun000", scan.pose, &scan.points, &tris)
+        .unwrap();
+    let tri = b.build();
+    let idx: Vec<usize> = (0..scan.len()).step_by(97).collect();
+    let p: Vec<Vec3> = idx.iter().map(|&i| scan.points[i]).collect();
+    let n: Vec<Vec3> = idx.iter().map(|&i| normals[i]).collect();
+    let r: Vec<f32> = idx.iter().map(|&i| radii[i]).collect();
+    let pr = prm(128, 0.05);
+    let a = obscurance(&surf, &p, &n, &r, &pr, &|_| {}).unwrap();
+    let t = obscurance(&tri, &p, &n, &r, &pr, &|_| {}).unwrap();
+    let d: Vec<f32> = a.iter().zip(&t).map(|(x, y)| x - y).collect();
+    let mean_abs = d.iter().map(|x| x.abs() as f64).sum::<f64>() / d.len() as f64;
+    println!(
+        "bun000: {} triangles, {} points, mean A surfels {:.4} triangles {:.4}, mean diff {:.4}, mean |diff| {mean_abs:.4}",
+        tris.len(),
+        p.len(),
+        mean(&a),
+        mean(&t),
+        mean(&d)
+    );
+    assert!(mean(&a) < 0.95, "the bunny is shaded");
+    assert!(mean(&d).abs() < 0.02);
+    assert!(mean_abs < 0.05);
+}
+
+/// The surfel reference of the synthetic room (three stations, exact ranges) against
+/// obscurance ray-cast on the room's exact analytic geometry: the surfel model itself is
+/// close to the surface it samples.
+#[test]
+fn synthetic_room_matches_its_analytic_geometry() {
+    use mvao::projection::SensorModel;
+    use mvao::synth::{scan_scene, station_layout, SceneKind};
+    let room = SceneKind::Room.scene();
+    let stations = station_layout(SceneKind::Room, SensorModel::Equirect, 3, 480, 240);
+    let scans: Vec<_> = stations
+        .iter()
+        .enumerate()
+        .map(|(i, st)| {
+            let mut s = scan_scene(&room, st, 0.0, i as u64, &format!("s{i}"));
+            s.pose = st.pose();
+            s
+        })
+        .collect();
+    let mut b = Scene::builder(scans[0].pose);
+    let mut radii0 = Vec::new();
+    for s in &scans {
+        let g = s.grid.as_ref().unwrap();
+        let (_, r) = mvao::scan::normals::estimate_grid(&s.points, g, false, |p| -p);
+        b.add_surfels(&s.name, s.pose, &s.points, s.normals.as_ref().unwrap(), &r)
+            .unwrap();
+        if radii0.is_empty() {
+            radii0 = r;
+        }
+    }
+    let scene = b.build();
+    let s0 = &scans[0];
+    let idx: Vec<usize> = (0..s0.len()).step_by(211).collect();
+    let p: Vec<Vec3> = idx.iter().map(|&i| s0.points[i]).collect();
+    let n: Vec<Vec3> = idx
+        .iter()
+        .map(|&i| s0.normals.as_ref().unwrap()[i])
+        .collect();
+    let r: Vec<f32> = idx.iter().map(|&i| radii0[i]).collect();
+    let (rays, tmax) = (256u32, 0.4f32);
+    let a = obscurance(&scene, &p, &n, &r, &prm(rays, tmax), &|_| {}).unwrap();
+    // Exact geometry, same estimator (stratified cosine-weighted directions), in f64.
+    let exact: Vec<f32> = p
+        .iter()
+        .zip(&n)
+        .map(|(p, n)| {
+            let pw = s0.pose.transform_point3(p.as_dvec3());
+            let nw = s0.pose.transform_vector3(n.as_dvec3()).normalize();
+            let (t, b) = nw.any_orthonormal_pair();
+            let o = pw + nw * 1e-6;
+            let mut sum = 0.0;
+            for j in 0..rays {
+                let u1 = (j as f64 + 0.5) / rays as f64;
+                let phi = std::f64::consts::TAU * (j as f64 * 0.618_033_988_749_895).fract();
+                let d = t * (u1.sqrt() * phi.cos())
+                    + b * (u1.sqrt() * phi.sin())
+                    + nw * (1.0 - u1).sqrt();
+                let hit = room.intersect_range(o, d, 1e-9, tmax as f64);
+                sum += hit.map_or(1.0, |h| rho(h.t as f32, tmax) as f64);
+            }
+            (sum / rays as f64) as f32
+        })
+        .collect();
+    let d: Vec<f32> = a.iter().zip(&exact).map(|(x, y)| x - y).collect();
+    let mean_abs = d.iter().map(|x| x.abs() as f64).sum::<f64>() / d.len() as f64;
+    let shaded = exact.iter().filter(|&&x| x < 0.9).count();
+    let shaded_abs = d
+        .iter()
+        .zip(&exact)
+        .filter(|(_, &x)| x < 0.9)
+        .map(|(x, _)| x.abs() as f64)
+        .sum::<f64>()
+        / shaded.max(1) as f64;
+    println!(
+        "room 3×480×240: {} points ({shaded} shaded, mean |diff| there {shaded_abs:.4}), mean A surfels {:.4} exact {:.4}, mean diff {:.4}, mean |diff| {mean_abs:.4}",
+        p.len(),
+        mean(&a),
+        mean(&exact),
+        mean(&d)
+    );
+    assert!(shaded > 20);
+    assert!(mean(&d).abs() < 0.01, "{}", mean(&d));
+    assert!(mean_abs < 0.03, "{mean_abs}");
+    assert!(shaded_abs < 0.06, "{shaded_abs}");
 }

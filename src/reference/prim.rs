@@ -31,25 +31,35 @@ impl Primitive for Surfel {
     #[inline(always)]
     fn hit(&self, ray: &Ray, t_hi: f32) -> Option<f32> {
         let denom = ray.d.dot(self.n);
-        // A ray parallel to the disk gives ±inf or NaN, rejected by the range test.
-        let t = (self.c - ray.o).dot(self.n) / denom;
-        if !(t > 0.0 && t < t_hi) {
+        let num = (self.c - ray.o).dot(self.n);
+        // t = num/denom in (0, t_hi) without dividing first: most candidates fail here or
+        // on the back-hit rule. A ray parallel to the disk (denom = 0) fails too.
+        if !(num * denom > 0.0 && num.abs() < t_hi * denom.abs()) {
+            return None;
+        }
+        let t = num / denom;
+        if !(t < t_hi) || (denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r)) {
             return None;
         }
         let q = ray.o + ray.d * t - self.c;
         if q.length_squared() > self.r2 {
             return None;
         }
-        if denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r) {
-            return None;
-        }
         Some(t)
     }
 
     #[inline]
-    fn above(&self, o: Vec3, n: Vec3) -> bool {
+    fn can_hit(&self, o: Vec3, n: Vec3, r_self: f32) -> bool {
+        // Entirely below the tangent plane at o?
         let c = n.dot(self.n);
-        n.dot(self.c - o) + self.r * (1.0 - c * c).max(0.0).sqrt() > 0.0
+        if !(n.dot(self.c - o) + self.r * (1.0 - c * c).max(0.0).sqrt() > 0.0) {
+            return false;
+        }
+        // With o behind the disk's plane every hit is a back hit, at a distance of at most
+        // |c − o| + r: all ignored when that is inside the back-hit range (with a margin
+        // for rounding).
+        let behind = (o - self.c).dot(self.n) <= 0.0;
+        !(behind && (self.c - o).length() + self.r < 0.99 * BACK_NEAR * (r_self + self.r))
     }
 }
 
@@ -93,7 +103,7 @@ impl Primitive for Triangle {
     }
 
     #[inline]
-    fn above(&self, o: Vec3, n: Vec3) -> bool {
+    fn can_hit(&self, o: Vec3, n: Vec3, _r_self: f32) -> bool {
         let a = n.dot(self.v0 - o);
         a > 0.0 || a + n.dot(self.e1) > 0.0 || a + n.dot(self.e2) > 0.0
     }

@@ -4,7 +4,7 @@
 
 use super::scene::Scene;
 use crate::reference::rho;
-use crate::reference::sampling::Pattern;
+use crate::reference::sampling::{Azimuths, Pattern};
 use crate::scan::Scan;
 use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
@@ -27,6 +27,7 @@ pub fn analytic_obscurance(
         return vec![1.0; scan.len()];
     };
     let rot = DMat3::from_mat4(scan.pose);
+    let az = Azimuths::new(rays.max(1));
     let reach = if tmax.is_finite() {
         tmax as f64
     } else {
@@ -42,7 +43,7 @@ pub fn analytic_obscurance(
                 return 1.0;
             }
             let o = scan.pose.transform_point3(p.as_dvec3()) + nw * LIFT;
-            let pat = Pattern::new(seed, i as u64, nw.as_vec3(), rays.max(1));
+            let pat = Pattern::new(seed, i as u64, nw.as_vec3(), &az);
             let mut sum = 0.0f64;
             for j in 0..rays.max(1) {
                 let d: Vec3 = pat.dir(j);
