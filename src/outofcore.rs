@@ -310,6 +310,8 @@ pub struct Outcome {
     pub values: Vec<(String, Vec<f32>, Vec<f32>)>,
     /// Warnings.
     pub warnings: Vec<String>,
+    /// The alignment file used, if any.
+    pub alignment: Option<PathBuf>,
     /// The reference values of the merged scans (`--reference`), checked before the work.
     pub refs: Option<Vec<Vec<f32>>>,
 }
@@ -502,6 +504,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         values: Vec::new(),
         warnings,
         refs,
+        alignment: placer.alignment().map(Path::to_path_buf),
     };
     if cfg.dry_run {
         return Ok(out);
@@ -650,6 +653,14 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             "dmin/dmax = smallest/largest depth over all scans with a sensor position";
     }
     let mp = out.merge;
+    for s in sums.iter().flatten() {
+        for (k, t) in &s.times {
+            match out.times.iter_mut().find(|(n, _)| n == k) {
+                Some(e) => e.1 += t,
+                None => out.times.push((k.clone(), *t)),
+            }
+        }
+    }
     let max_rad: Vec<f64> = sums
         .iter()
         .map(|s| s.as_ref().map_or(0.0, |s| s.max_radius as f64))
@@ -677,6 +688,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         }
     );
     let mut merge_read = 0u64;
+    let mut write_s = 0.0f64;
     // The cache gets what the budget leaves beside one input file's data and its own view.
     let mut cache = MapCache {
         budget: budget.saturating_sub(max_file_bytes * 3 + 2 * out.plan.largest_view_bytes),
@@ -798,6 +810,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             warnings: Vec::new(),
             files: vec![pf.file],
         };
+        let tw = Instant::now();
         let units = results::plan(&ds, cfg.format, &cfg.out_dir)?;
         for u in &units {
             if u.scans.iter().all(|&k| !aos[k].is_empty()) {
@@ -814,11 +827,14 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 ));
             }
         }
+        write_s += tw.elapsed().as_secs_f64();
     }
     out.map_loads = cache.loads;
     merge_read += cache.bytes_read;
     obs.done("merge", t0.elapsed().as_secs_f64());
-    out.times.push(("merge".into(), t0.elapsed().as_secs_f64()));
+    out.times
+        .push(("merge".into(), t0.elapsed().as_secs_f64() - write_s));
+    out.times.push(("write".into(), write_s));
     out.bytes_read.push(("merge".into(), merge_read));
     Ok(out)
 }

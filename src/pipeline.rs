@@ -620,6 +620,7 @@ pub fn run(cfg: &Config) -> Result<Report> {
         report.add_time(k, *t);
     }
     report.bytes_read = oc.bytes_read.iter().cloned().collect();
+    report.alignment = oc.alignment.as_ref().map(|a| a.display().to_string());
     report.products = [oc.prepared.0, oc.prepared.1];
     report.map_loads = oc.map_loads;
     if cfg.dry_run {

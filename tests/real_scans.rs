@@ -115,7 +115,7 @@ fn bunny_merge_outputs_every_scan() {
     }
     assert!(report["alignment"].as_str().unwrap().ends_with("bun.conf"));
     for key in [
-        "read", "sensor", "normals", "gbuffer", "ssao", "border", "merge", "write",
+        "catalog", "prepare", "sensor", "normals", "gbuffer", "ssao", "border", "merge", "write",
     ] {
         assert!(report["timings_s"][key].as_f64().is_some(), "timing {key}");
     }
