@@ -130,6 +130,14 @@ pub fn peak_rss() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// Resident memory of this process now (bytes), where the system tells.
+pub fn current_rss() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
 /// Total memory of the machine (bytes), where the system tells.
 pub fn total_memory() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/meminfo").ok()?;
@@ -171,45 +179,69 @@ fn data_hash(s: &Scan) -> String {
     format!("{:032x}", h.digest128())
 }
 
-/// A cache of other scans' maps, bounded in bytes, least recently used out first.
+/// A cache of other scans' maps, bounded in bytes. The merge's order of loads is known in
+/// advance, so the map evicted is the one needed again the latest (Belady's rule): with a
+/// cyclic order, least-recently-used would miss every time once the maps do not all fit.
 struct MapCache {
     budget: u64,
+    /// Memory the process holds outside the cache (measured once per scan).
+    outside: u64,
     used: u64,
-    tick: u64,
-    maps: HashMap<usize, (MergeMaps, u64, u64)>,
+    maps: HashMap<usize, (MergeMaps, u64)>,
+    /// Every load the merge will ask for, in order, and how far it has got.
+    future: Vec<usize>,
+    pos: usize,
     loads: u64,
     bytes_read: u64,
 }
 
 impl MapCache {
-    fn get(&mut self, j: usize, dir: &Path, key: &str) -> Result<&MergeMaps> {
-        self.tick += 1;
+    /// Measures what the process holds beside the cache.
+    fn measure(&mut self) {
+        self.outside = current_rss().map_or(0, |r| r.saturating_sub(self.used));
+    }
+
+    /// Position of the next request for `k` after the current one (`usize::MAX`: never).
+    fn next_use(&self, k: usize) -> usize {
+        self.future[self.pos.min(self.future.len())..]
+            .iter()
+            .position(|&x| x == k)
+            .map_or(usize::MAX, |p| self.pos + p)
+    }
+
+    /// Evicts maps, those needed latest first, until `need` more bytes fit in the budget.
+    fn make_room(&mut self, need: u64) {
+        let room = self.budget.saturating_sub(self.outside);
+        while self.used + need > room && !self.maps.is_empty() {
+            let victim = self.maps.keys().copied().max_by_key(|&k| self.next_use(k));
+            if let Some((_, b)) = victim.and_then(|k| self.maps.remove(&k)) {
+                self.used -= b;
+            }
+        }
+    }
+
+    fn get(&mut self, j: usize, dir: &Path, key: &str, pixels: u64) -> Result<&MergeMaps> {
+        // Skip ahead to this request in the planned order.
+        if let Some(p) = self.future[self.pos.min(self.future.len())..]
+            .iter()
+            .position(|&x| x == j)
+        {
+            self.pos += p + 1;
+        }
         if !self.maps.contains_key(&j) {
+            // Decoding holds the file's bytes beside the maps for a moment.
+            let bytes = view_bytes(pixels, 0);
+            self.make_room(2 * bytes);
             let m = work::load_maps_for_merge(dir, key)?;
-            let bytes = view_bytes((m.gbuf.width * m.gbuf.height) as u64, 0);
             self.loads += 1;
             self.bytes_read += bytes;
-            while self.used + bytes > self.budget && !self.maps.is_empty() {
-                let oldest = self
-                    .maps
-                    .iter()
-                    .min_by_key(|(_, v)| v.2)
-                    .map(|(k, _)| *k)
-                    .unwrap_or(j);
-                if let Some((_, b, _)) = self.maps.remove(&oldest) {
-                    self.used -= b;
-                }
-            }
             self.used += bytes;
-            self.maps.insert(j, (m, bytes, self.tick));
+            self.maps.insert(j, (m, bytes));
         }
-        let tick = self.tick;
-        let e = self
-            .maps
-            .get_mut(&j)
-            .ok_or_else(|| Error::Param("map cache lost an entry (internal error)".into()))?;
-        e.2 = tick;
-        Ok(&e.0)
+        self.maps
+            .get(&j)
+            .map(|e| &e.0)
+            .ok_or_else(|| Error::Param("map cache lost an entry (internal error)".into()))
     }
 }
 
@@ -477,7 +509,9 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         point_views,
     };
     // One input file's data and one view must fit beside the cache.
-    let floor = max_file_bytes * 3 + 2 * plan.largest_view_bytes;
+    // Measured on PLY scans: the parsed file, its scan, the own view, one partner's maps
+    // while they are decoded, and the process itself.
+    let floor = max_file_bytes * 5 + 3 * plan.largest_view_bytes + (16 << 20);
     if floor > budget {
         warnings.push(format!(
             "--max-memory {:.2} GiB is below what one input file and its view need (≈ {:.2} GiB); \
@@ -690,11 +724,24 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut merge_read = 0u64;
     let mut write_s = 0.0f64;
     // The cache gets what the budget leaves beside one input file's data and its own view.
+    let mut future = Vec::new();
+    for fi in 0..placer.len() {
+        for i in (0..n).filter(|&i| cat[i].file == fi && selected(&cat[i])) {
+            for j in (0..n).filter(|&j| j != i) {
+                let reach = (2.0 * tmax as f64).max(2.0 * max_rad[i].max(max_rad[j]));
+                if pair_meets(i, j, reach) {
+                    future.push(j);
+                }
+            }
+        }
+    }
     let mut cache = MapCache {
-        budget: budget.saturating_sub(max_file_bytes * 3 + 2 * out.plan.largest_view_bytes),
+        budget,
+        outside: 0,
         used: 0,
-        tick: 0,
         maps: HashMap::new(),
+        future,
+        pos: 0,
         loads: 0,
         bytes_read: 0,
     };
@@ -713,6 +760,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             let own = work::load_view(&work_dir, &cat[i].key)?;
             merge_read += view_bytes((own.gbuf.width * own.gbuf.height) as u64, s.len() as u64);
             let (own_ssao, no_sample) = own.point_ssao();
+            cache.measure();
             let (ao, st) = if prm.ssao_only {
                 (own_ssao.clone(), MergeStats::default())
             } else {
@@ -743,7 +791,10 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                         };
                         merge::accumulate(&mut acc, &t, j, &v, &mp, &|_| {});
                     } else {
-                        let m = cache.get(j, &work_dir, &cat[j].key)?;
+                        let pixels = sums[j].as_ref().map_or(cat[j].map_pixels, |s| {
+                            (s.map_size[0] * s.map_size[1]) as u64
+                        });
+                        let m = cache.get(j, &work_dir, &cat[j].key, pixels)?;
                         merge::accumulate(&mut acc, &t, j, &m.view(pose_j), &mp, &|_| {});
                     }
                 }
@@ -811,6 +862,9 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             files: vec![pf.file],
         };
         let tw = Instant::now();
+        // Writing copies the input's content: room for it before the copy.
+        cache.measure();
+        cache.make_room(3 * std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
         let units = results::plan(&ds, cfg.format, &cfg.out_dir)?;
         for u in &units {
             if u.scans.iter().all(|&k| !aos[k].is_empty()) {

@@ -1,0 +1,243 @@
+//! The work directory and the memory budget: a rerun reuses products, a crash between steps
+//! resumes to identical outputs, a changed parameter or input invalidates exactly what
+//! depends on it, the plan skips pairs that cannot meet, per-scan jobs (`prepare`, `merge
+//! --only`) give the same result as one run, and a merge over more scans than fit in the
+//! budget stays under it.
+
+mod common;
+
+use common::*;
+use std::path::{Path, PathBuf};
+
+fn ok(args: &[&str]) -> String {
+    let r = mvao(args);
+    let err = String::from_utf8_lossy(&r.stderr).into_owned();
+    assert!(r.status.success(), "{args:?}: {err}");
+    err + &String::from_utf8_lossy(&r.stdout)
+}
+
+fn synth(dir: &Path, stations: u32, w: u32, h: u32) -> Vec<PathBuf> {
+    ok(&[
+        "synth",
+        "--stations",
+        &stations.to_string(),
+        "--width",
+        &w.to_string(),
+        "--height",
+        &h.to_string(),
+        "-o",
+        dir.to_str().unwrap(),
+    ]);
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "ply"))
+        .collect();
+    v.sort();
+    v
+}
+
+fn report(dir: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap()
+}
+
+fn merge(scans: &[PathBuf], out: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut a = vec![
+        "merge",
+        "-q",
+        "--force",
+        "--no-preview",
+        "--radius",
+        "0.2",
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    a.extend_from_slice(extra);
+    a.extend(scans.iter().map(|p| p.to_str().unwrap()));
+    ok(&a);
+    report(out)
+}
+
+fn outputs(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.to_string_lossy().ends_with(".mvao.ply"))
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+fn products(r: &serde_json::Value) -> (u64, u64) {
+    (
+        r["products"][0].as_u64().unwrap(),
+        r["products"][1].as_u64().unwrap(),
+    )
+}
+
+#[test]
+fn reruns_reuse_products_and_crashes_resume_to_identical_outputs() {
+    let d = tempfile::tempdir().unwrap();
+    let scans = synth(&d.path().join("site"), 3, 240, 120);
+    let out = d.path().join("out");
+    let r = merge(&scans, &out, &[]);
+    assert_eq!(products(&r), (3, 0));
+    let first = outputs(&out);
+    assert_eq!(first.len(), 3);
+
+    // Rerun: every product reused, outputs byte-identical.
+    let r = merge(&scans, &out, &[]);
+    assert_eq!(products(&r), (0, 3));
+    assert_eq!(outputs(&out), first);
+
+    // A crash between steps: one product's entry never written, another's maps gone, a
+    // temporary file left behind.
+    let work = out.join("work");
+    std::fs::remove_file(work.join("station_001.manifest.json")).unwrap();
+    let maps: Vec<PathBuf> = std::fs::read_dir(&work)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            let n = p.file_name().unwrap().to_string_lossy();
+            n.starts_with("station_002.") && n.ends_with(".maps.exr")
+        })
+        .collect();
+    std::fs::remove_file(&maps[0]).unwrap();
+    std::fs::write(work.join(".station_000.x.tmp-999999"), b"half").unwrap();
+    let r = merge(&scans, &out, &[]);
+    assert_eq!(products(&r), (2, 1), "{}", r["warnings"]);
+    assert_eq!(outputs(&out), first, "resumed run differs");
+
+    // A merge-only parameter recomputes no product; an SSAO parameter recomputes all.
+    let r = merge(&scans, &out, &["--neighbors", "3"]);
+    assert_eq!(products(&r), (0, 3));
+    let r = merge(&scans, &out, &["--directions", "4"]);
+    assert_eq!(products(&r), (3, 0));
+    // A changed input recomputes only its own product.
+    let r = merge(&scans, &out, &["--directions", "4"]);
+    assert_eq!(products(&r), (0, 3));
+    let mut ply = mvao::io::ply::PlyFile::read_path(&scans[1]).unwrap();
+    let mut x = ply.scalar_column("vertex", "x").unwrap();
+    x[0] += 0.001;
+    ply.set_scalar_column("vertex", "x", mvao::io::ply::ScalarType::F32, &x)
+        .unwrap();
+    ply.write_path(&scans[1]).unwrap();
+    let r = merge(&scans, &out, &["--directions", "4"]);
+    assert_eq!(products(&r), (1, 2));
+}
+
+#[test]
+fn per_scan_jobs_give_the_same_result_as_one_run() {
+    let d = tempfile::tempdir().unwrap();
+    let scans = synth(&d.path().join("site"), 3, 200, 100);
+    let whole = d.path().join("whole");
+    merge(&scans, &whole, &[]);
+    let jobs = d.path().join("jobs");
+    let work = d.path().join("work");
+    let s: Vec<&str> = scans.iter().map(|p| p.to_str().unwrap()).collect();
+    for name in ["station_000", "station_001", "station_002"] {
+        let mut a = vec![
+            "prepare",
+            "-q",
+            "--radius",
+            "0.2",
+            "--work",
+            work.to_str().unwrap(),
+            "--only",
+            name,
+            "-o",
+            jobs.to_str().unwrap(),
+        ];
+        a.extend(&s);
+        ok(&a);
+    }
+    for name in ["station_000", "station_001", "station_002"] {
+        let mut a = vec![
+            "merge",
+            "-q",
+            "--no-preview",
+            "--radius",
+            "0.2",
+            "--work",
+            work.to_str().unwrap(),
+            "--only",
+            name,
+            "-o",
+            jobs.to_str().unwrap(),
+        ];
+        a.extend(&s);
+        ok(&a);
+        let r: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(jobs.join(format!("report.{name}.json"))).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(products(&r).0, 0, "merge --only recomputed a product");
+    }
+    assert_eq!(outputs(&jobs), outputs(&whole));
+}
+
+#[test]
+fn the_plan_skips_pairs_that_cannot_meet() {
+    let d = tempfile::tempdir().unwrap();
+    let scans = synth(&d.path().join("site"), 2, 120, 60);
+    // Move the second station's pose 1 km away.
+    let mlp = d.path().join("site/alignment.mlp");
+    let mut al = mvao::io::align::read_alignment(&mlp).unwrap();
+    al.entries[1].pose =
+        glam::DMat4::from_translation(glam::DVec3::new(1000.0, 0.0, 0.0)) * al.entries[1].pose;
+    mvao::io::align::write_mlp(&mlp, &al.entries).unwrap();
+    let out = d.path().join("out");
+    let mut a = vec![
+        "merge",
+        "--dry-run",
+        "--radius",
+        "0.2",
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    a.extend(scans.iter().map(|p| p.to_str().unwrap()));
+    let text = ok(&a);
+    assert!(text.contains("pairs kept 0, skipped 2"), "{text}");
+    assert!(!out.join("work").exists(), "a dry run wrote products");
+    let r = merge(&scans, &out, &[]);
+    assert_eq!(r["plan"]["pairs_skipped"], 2);
+    // Each scan merged against its own view only.
+    for s in r["scans"].as_array().unwrap() {
+        assert_eq!(s["point_views"], s["points"]);
+    }
+}
+
+/// Eight stations whose maps do not all fit in a 200 MiB budget: the merge reloads maps
+/// instead of holding them, the output equals an unbounded run, and the peak stays under
+/// the budget plus 10 %.
+#[test]
+fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
+    let d = tempfile::tempdir().unwrap();
+    let scans = synth(&d.path().join("site"), 8, 1024, 512);
+    let free = d.path().join("free");
+    let r_free = merge(&scans, &free, &[]);
+    let all = r_free["plan"]["all_views_bytes"].as_u64().unwrap();
+    let budget: u64 = 200 << 20;
+    assert!(all > budget, "views {all} fit in the budget: not a test");
+    let tight = d.path().join("tight");
+    let r = merge(&scans, &tight, &["--max-memory", "200M"]);
+    assert_eq!(outputs(&tight), outputs(&free));
+    let loads = r["map_loads"].as_u64().unwrap();
+    assert!(
+        loads > r_free["map_loads"].as_u64().unwrap(),
+        "no reloads under the budget: {loads}"
+    );
+    let peak = r["peak_rss_bytes"].as_u64().unwrap();
+    assert!(
+        peak as f64 <= budget as f64 * 1.1,
+        "peak {} MiB over the {} MiB budget",
+        peak >> 20,
+        budget >> 20
+    );
+}
