@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Overnight-scale benchmark: a synthetic site of many TLS stations run end to end under a
+# memory budget. Prints points/s, per-stage times, peak RSS and the time extrapolated to the
+# paper's castle (317 M points).
+#
+#   scripts/bench_scale.sh [STATIONS=24] [WIDTH=1440] [HEIGHT=720] [BUDGET=2G] [DIR=bench-scale]
+#
+# 24 stations of 1440×720 are about 25 M points (0.7 GB of PLY); 50 stations make 52 M.
+set -euo pipefail
+stations="${1:-24}"; width="${2:-1440}"; height="${3:-720}"; budget="${4:-2G}"
+dir="${5:-bench-scale}"
+here="$(cd "$(dirname "$0")" && pwd)"
+cd "$here/.."
+cargo build --release -q
+mvao="$PWD/target/release/mvao"
+mkdir -p "$dir"
+if [ ! -f "$dir/site/alignment.mlp" ] || [ "$(ls "$dir"/site/*.ply | wc -l)" != "$stations" ]; then
+    rm -rf "$dir/site"
+    "$mvao" synth --scene room --stations "$stations" --width "$width" --height "$height" -o "$dir/site"
+fi
+rm -rf "$dir/out"
+/usr/bin/time -v "$mvao" merge -q --no-preview --radius 0.2 --tmax 0.4 --max-memory "$budget" \
+    -o "$dir/out" "$dir"/site/*.ply 2>"$dir/time.log"
+python3 - "$dir" "$budget" <<'PY'
+import json, re, sys
+d, budget = sys.argv[1], sys.argv[2]
+r = json.load(open(f"{d}/out/report.json"))
+log = open(f"{d}/time.log").read()
+wall = r["totals"]["wall_s"]
+pts = r["totals"]["points"]
+rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", log).group(1)) * 1024
+print(f"{len(r['scans'])} scans, {pts/1e6:.1f} M points, budget {budget}")
+print(f"end to end: {wall:.1f} s = {pts/wall/1e6:.2f} M points/s")
+for k, v in sorted(r["timings_s"].items(), key=lambda kv: -kv[1]):
+    print(f"  {k:<10} {v:8.1f} s")
+print(f"peak RSS: {rss/2**30:.2f} GiB (time -v), {r['peak_rss_bytes']/2**30:.2f} GiB (report)")
+print(f"maps loaded by the merge: {r['map_loads']}; pairs kept {r['plan']['pairs_kept']}, skipped {r['plan']['pairs_skipped']}")
+print("bytes read: " + ", ".join(f"{k} {v/2**30:.2f} GiB" for k, v in r["bytes_read"].items()))
+print(f"extrapolated to 317 M points at this rate: {317e6/(pts/wall)/3600:.2f} h")
+PY
