@@ -154,27 +154,42 @@ pub fn default_budget() -> u64 {
 /// A fingerprint of what a scan's products depend on: local points, normals and grid.
 fn data_hash(s: &Scan) -> String {
     let mut h = xxhash_rust::xxh3::Xxh3::new();
-    for p in &s.points {
-        for v in p.to_array() {
-            h.update(&v.to_le_bytes());
-        }
-    }
-    if let Some(n) = &s.normals {
-        h.update(b"n");
-        for p in n {
-            for v in p.to_array() {
-                h.update(&v.to_le_bytes());
+    // Values are staged into a buffer so the hasher sees large slices, not 4-byte updates.
+    let mut buf: Vec<u8> = Vec::with_capacity(1 << 16);
+    let mut feed = |h: &mut xxhash_rust::xxh3::Xxh3, vals: &mut dyn Iterator<Item = [u8; 4]>| {
+        for v in vals {
+            buf.extend_from_slice(&v);
+            if buf.len() >= (1 << 16) {
+                h.update(&buf);
+                buf.clear();
             }
         }
+        h.update(&buf);
+        buf.clear();
+    };
+    feed(
+        &mut h,
+        &mut s
+            .points
+            .iter()
+            .flat_map(|p| p.to_array())
+            .map(f32::to_le_bytes),
+    );
+    if let Some(n) = &s.normals {
+        h.update(b"n");
+        feed(
+            &mut h,
+            &mut n.iter().flat_map(|p| p.to_array()).map(f32::to_le_bytes),
+        );
     }
     if let Some(g) = &s.grid {
         h.update(b"g");
         h.update(&g.rows.to_le_bytes());
         h.update(&g.cols.to_le_bytes());
-        for (r, c) in g.row.iter().zip(&g.col) {
-            h.update(&r.to_le_bytes());
-            h.update(&c.to_le_bytes());
-        }
+        feed(
+            &mut h,
+            &mut g.row.iter().chain(&g.col).map(|v| v.to_le_bytes()),
+        );
     }
     format!("{:032x}", h.digest128())
 }
