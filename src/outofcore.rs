@@ -500,13 +500,13 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     };
     let mut kept = 0usize;
     let mut point_views = 0u64;
-    for i in 0..n {
+    for (i, c) in cat.iter().enumerate() {
         for j in 0..n {
             if i == j || pair_meets(i, j, 2.0 * tmax as f64) {
                 if i != j {
                     kept += 1;
                 }
-                point_views += cat[i].points as u64;
+                point_views += c.points as u64;
             }
         }
     }
@@ -562,7 +562,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     // Pass 2: prepare what is missing or stale.
     std::fs::create_dir_all(&work_dir).map_err(|e| Error::io(&work_dir, e))?;
     let mut manifest = Manifest::load(&work_dir);
-    out.warnings.extend(manifest.warnings.drain(..));
+    out.warnings.append(&mut manifest.warnings);
     let selected = |c: &CatalogScan| cfg.only.is_empty() || cfg.only.contains(&c.name);
     let params = |c: &CatalogScan| {
         serde_json::json!({
