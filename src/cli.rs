@@ -434,9 +434,13 @@ pub struct SynthArgs {
 }
 
 impl SynthArgs {
-    /// The virtual scanner's options.
-    pub fn into_options(self) -> SynthOptions {
-        SynthOptions {
+    /// Checks the values and turns them into the virtual scanner's options.
+    pub fn into_options(self) -> Result<SynthOptions, String> {
+        let reference = match self.reference_rays {
+            Some(r) => Some((r.max(1), parse_tmax(&self.reference_tmax)?)),
+            None => None,
+        };
+        Ok(SynthOptions {
             scene: match self.scene {
                 SceneArg::Room => SceneKind::Room,
                 SceneArg::Courtyard => SceneKind::Courtyard,
@@ -448,13 +452,8 @@ impl SynthArgs {
             noise: self.noise,
             seed: self.seed,
             out_dir: self.output,
-            reference: self.reference_rays.map(|r| {
-                (
-                    r.max(1),
-                    parse_tmax(&self.reference_tmax).unwrap_or(f32::INFINITY),
-                )
-            }),
-        }
+            reference,
+        })
     }
 }
 

@@ -83,7 +83,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
         Command::Sweep(args) => sweep(args),
         Command::Plot(args) => plot(args),
         Command::Synth(args) => {
-            let opts = args.into_options();
+            let opts = args.into_options().map_err(anyhow::Error::msg)?;
             let summary = crate::synth::run(&opts)?;
             let points: usize = summary.files.iter().map(|f| f.points).sum();
             eprintln!(
