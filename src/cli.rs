@@ -203,7 +203,7 @@ pub struct ReferenceArgs {
 impl ReferenceArgs {
     /// Checks the values and turns them into a [`RefConfig`].
     pub fn into_config(self) -> Result<RefConfig, String> {
-        let tmax = parse_tmax(&self.tmax)?;
+        let tmax = parse_tmax(&self.tmax, "tmax")?;
         Ok(RefConfig {
             scans: self.scans,
             place: self.place.options(),
@@ -222,14 +222,14 @@ impl ReferenceArgs {
 }
 
 /// `--tmax`: a positive number of metres or `inf`.
-fn parse_tmax(s: &str) -> Result<f32, String> {
+fn parse_tmax(s: &str, flag: &str) -> Result<f32, String> {
     if matches!(s, "inf" | "infinity" | "Inf") {
         return Ok(f32::INFINITY);
     }
     match s.parse::<f32>() {
         Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
         _ => Err(format!(
-            "--tmax must be a positive number of metres or 'inf', got '{s}'"
+            "--{flag} must be a positive number of metres or 'inf', got '{s}'"
         )),
     }
 }
@@ -437,7 +437,10 @@ impl SynthArgs {
     /// Checks the values and turns them into the virtual scanner's options.
     pub fn into_options(self) -> Result<SynthOptions, String> {
         let reference = match self.reference_rays {
-            Some(r) => Some((r.max(1), parse_tmax(&self.reference_tmax)?)),
+            Some(r) => Some((
+                r.max(1),
+                parse_tmax(&self.reference_tmax, "reference-tmax")?,
+            )),
             None => None,
         };
         Ok(SynthOptions {
