@@ -453,39 +453,9 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
 
     // Parameters (as `pipeline::compute` derives them).
     let prm = &cfg.compute;
-    let mut note = String::new();
-    let radius = match prm.radius {
-        Some(r) => r,
-        None => {
-            let diag = robust_diagonal(&samples);
-            let r = (diag / 50.0) as f32;
-            note += &format!("radius = scene diagonal {diag:.4} m / 50 = {r:.4} m; ");
-            r
-        }
-    };
+    let (sp, note) = crate::pipeline::ssao_params(prm, || robust_diagonal(&samples))?;
     drop(samples);
-    let tmax = match prm.tmax {
-        Some(t) => t,
-        None => {
-            note += "tmax = 2 × radius; ";
-            2.0 * radius
-        }
-    };
-    if !(radius > 0.0 && radius.is_finite()) {
-        return Err(Error::Param(format!(
-            "the SSAO radius must be a positive number of metres (got {radius}); give --radius"
-        )));
-    }
-    let sp = SsaoParams {
-        estimator: prm.estimator,
-        radius,
-        tmax,
-        samples: prm.samples,
-        directions: prm.directions,
-        steps: prm.steps,
-        seed: prm.seed,
-        blur: prm.blur,
-    };
+    let tmax = sp.tmax;
 
     // The plan. Pair skipping uses the SSAO reach here; eq. 7's reach (radii) is added once
     // the radii are known.

@@ -230,6 +230,48 @@ pub fn robust_diagonal(scans: &[Scan]) -> f64 {
     ext.length()
 }
 
+/// The SSAO parameters of a run, with a note on how the defaults were derived: radius =
+/// robust scene diagonal / 50 (`diag` is only called when no radius is given), t_max =
+/// 2 × radius.
+pub fn ssao_params(
+    prm: &ComputeParams,
+    diag: impl FnOnce() -> f64,
+) -> Result<(SsaoParams, String)> {
+    let mut note = String::new();
+    let radius = match prm.radius {
+        Some(r) => r,
+        None => {
+            let d = diag();
+            let r = (d / 50.0) as f32;
+            note += &format!("radius = scene diagonal {d:.4} m / 50 = {r:.4} m; ");
+            r
+        }
+    };
+    let tmax = match prm.tmax {
+        Some(t) => t,
+        None => {
+            note += "tmax = 2 × radius; ";
+            2.0 * radius
+        }
+    };
+    if !(radius > 0.0 && radius.is_finite()) {
+        return Err(Error::Param(format!(
+            "the SSAO radius must be a positive number of metres (got {radius}); give --radius"
+        )));
+    }
+    let sp = SsaoParams {
+        estimator: prm.estimator,
+        radius,
+        tmax,
+        samples: prm.samples,
+        directions: prm.directions,
+        steps: prm.steps,
+        seed: prm.seed,
+        blur: prm.blur,
+    };
+    Ok((sp, note))
+}
+
 /// Runs the per-view stages on one scan.
 pub fn prepare_view(
     scan: &Scan,
@@ -350,38 +392,8 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
     if let Some(s) = scans.iter().find(|s| s.is_empty()) {
         return Err(Error::scan(&s.name, "has no valid point"));
     }
-    let diag = robust_diagonal(scans);
-    let mut note = String::new();
-    let radius = match prm.radius {
-        Some(r) => r,
-        None => {
-            let r = (diag / 50.0) as f32;
-            note += &format!("radius = scene diagonal {diag:.4} m / 50 = {r:.4} m; ");
-            r
-        }
-    };
-    let tmax = match prm.tmax {
-        Some(t) => t,
-        None => {
-            note += "tmax = 2 × radius; ";
-            2.0 * radius
-        }
-    };
-    if !(radius > 0.0 && radius.is_finite()) {
-        return Err(Error::Param(format!(
-            "the SSAO radius must be a positive number of metres (got {radius}); give --radius"
-        )));
-    }
-    let sp = SsaoParams {
-        estimator: prm.estimator,
-        radius,
-        tmax,
-        samples: prm.samples,
-        directions: prm.directions,
-        steps: prm.steps,
-        seed: prm.seed,
-        blur: prm.blur,
-    };
+    let (sp, mut note) = ssao_params(prm, || robust_diagonal(scans))?;
+    let tmax = sp.tmax;
     let total: u64 = scans.iter().map(|s| s.len() as u64).sum();
     obs.stage("prepare", total);
     let t0 = Instant::now();
