@@ -5,37 +5,7 @@
 mod common;
 
 use common::*;
-use std::path::{Path, PathBuf};
-
-fn ok(args: &[&str]) -> String {
-    let r = mvao(args);
-    let err = String::from_utf8_lossy(&r.stderr).into_owned();
-    assert!(r.status.success(), "{args:?}: {err}");
-    err + &String::from_utf8_lossy(&r.stdout)
-}
-
-fn synth_room(dir: &Path, w: u32, h: u32) -> Vec<PathBuf> {
-    ok(&[
-        "synth",
-        "--scene",
-        "room",
-        "--stations",
-        "3",
-        "--width",
-        &w.to_string(),
-        "--height",
-        &h.to_string(),
-        "-o",
-        dir.to_str().unwrap(),
-    ]);
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "ply"))
-        .collect();
-    v.sort();
-    v
-}
+use std::path::PathBuf;
 
 fn strs(v: &[PathBuf]) -> Vec<&str> {
     v.iter().map(|p| p.to_str().unwrap()).collect()
@@ -48,12 +18,12 @@ fn strs(v: &[PathBuf]) -> Vec<&str> {
 #[test]
 fn the_converging_estimator_meets_the_room_target() {
     let d = tempfile::tempdir().unwrap();
-    let scans = synth_room(&d.path().join("room"), 480, 240);
+    let scans = synth_room(&d.path().join("room"), 3, 480, 240);
     let refdir = d.path().join("ref");
     let mut a = vec!["reference", "-q", "--tmax", "0.4", "--rays", "64", "-o"];
     a.push(refdir.to_str().unwrap());
     a.extend(strs(&scans));
-    ok(&a);
+    mvao_ok(&a);
     let rep: serde_json::Value =
         serde_json::from_slice(&std::fs::read(refdir.join("reference.json")).unwrap()).unwrap();
     for s in rep["scans"].as_array().unwrap() {
@@ -78,7 +48,7 @@ fn the_converging_estimator_meets_the_room_target() {
         out.to_str().unwrap(),
     ];
     m.extend(strs(&scans));
-    ok(&m);
+    mvao_ok(&m);
     let r: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let acc = &r["accuracy"];
@@ -129,7 +99,7 @@ fn the_converging_estimator_meets_the_room_target() {
         lines[1].split(',').count(),
         "{text}"
     );
-    ok(&["plot", csv.to_str().unwrap()]);
+    mvao_ok(&["plot", csv.to_str().unwrap()]);
     let svg = std::fs::read_to_string(csv.with_extension("svg")).unwrap();
     assert!(svg.contains("<circle") && !svg.contains("NaN"));
 }
@@ -137,12 +107,12 @@ fn the_converging_estimator_meets_the_room_target() {
 #[test]
 fn sweep_writes_csv_and_plot_and_a_wrong_reference_is_refused() {
     let d = tempfile::tempdir().unwrap();
-    let scans = synth_room(&d.path().join("room"), 160, 80);
+    let scans = synth_room(&d.path().join("room"), 3, 160, 80);
     let refdir = d.path().join("ref");
     let mut a = vec!["reference", "-q", "--tmax", "0.4", "--rays", "16", "-o"];
     a.push(refdir.to_str().unwrap());
     a.extend(strs(&scans));
-    ok(&a);
+    mvao_ok(&a);
     let sw = d.path().join("sweep");
     let mut s = vec![
         "sweep",
@@ -159,7 +129,7 @@ fn sweep_writes_csv_and_plot_and_a_wrong_reference_is_refused() {
         sw.to_str().unwrap(),
     ];
     s.extend(strs(&scans));
-    ok(&s);
+    mvao_ok(&s);
     let text = std::fs::read_to_string(sw.join("sweep.csv")).unwrap();
     let lines: Vec<&str> = text.lines().collect();
     // 4 settings × (1 single-view row + 2 merge rows).
@@ -175,11 +145,11 @@ fn sweep_writes_csv_and_plot_and_a_wrong_reference_is_refused() {
 
     // A reference of other scans: named, refused.
     let other = d.path().join("other");
-    let few = synth_room(&d.path().join("few"), 120, 60);
+    let few = synth_room(&d.path().join("few"), 3, 120, 60);
     let mut a = vec!["reference", "-q", "--tmax", "0.4", "--rays", "4", "-o"];
     a.push(other.to_str().unwrap());
     a.extend(strs(&few));
-    ok(&a);
+    mvao_ok(&a);
     let mut m = vec!["merge", "-q", "--reference", other.to_str().unwrap(), "-o"];
     let o = d.path().join("o");
     m.push(o.to_str().unwrap());

@@ -50,13 +50,6 @@ fn ao_record() -> e57::RecordName {
     }
 }
 
-fn run_ok(args: &[&str]) -> String {
-    let r = mvao(args);
-    let err = String::from_utf8_lossy(&r.stderr).into_owned();
-    assert!(r.status.success(), "{args:?}: {err}");
-    err
-}
-
 fn all_in_unit(v: &[f64]) -> bool {
     v.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a))
 }
@@ -81,7 +74,7 @@ fn the_real_e57_station_is_read_as_its_source_states_and_merged() {
     assert!(range.0 > 1.97 && range.1 < 5.44, "{range:?}");
 
     let d = tempfile::tempdir().unwrap();
-    run_ok(&[
+    mvao_ok(&[
         "merge",
         "-q",
         "--no-preview",
@@ -143,7 +136,7 @@ fn a_multi_scan_e57_is_merged_with_its_poses() {
     }
 
     let o = d.path().join("out");
-    run_ok(&[
+    mvao_ok(&[
         "merge",
         "-q",
         "--no-preview",
@@ -169,7 +162,7 @@ fn a_multi_scan_e57_is_merged_with_its_poses() {
 
     // Cross-format: the same file to per-scan PLYs, named after the scans, world coordinates.
     let op = d.path().join("ply");
-    run_ok(&[
+    mvao_ok(&[
         "merge",
         "-q",
         "--no-preview",
@@ -240,7 +233,7 @@ fn a_ptx_file_with_two_blocks_is_merged() {
         assert!(s.pose.abs_diff_eq(t.pose, 1e-9), "{} vs {}", s.pose, t.pose);
     }
     let o = d.path().join("o");
-    run_ok(&[
+    mvao_ok(&[
         "merge",
         "-q",
         "--radius",
@@ -283,7 +276,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
     mvao::io::las_file::write_table_las(&table, &las, false).unwrap();
     // Without a scanner position: a clear warning naming what is missing.
     let o0 = d.path().join("o0");
-    let err = run_ok(&[
+    let err = mvao_ok(&[
         "merge",
         "--radius",
         "0.2",
@@ -306,7 +299,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
         .collect();
     std::fs::write(las.with_extension("txt"), rows).unwrap();
     let o = d.path().join("o");
-    run_ok(&[
+    mvao_ok(&[
         "merge",
         "-q",
         "--radius",
@@ -334,7 +327,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
     let ply = d.path().join("tls.ply");
     mvao::synth::write_scan_ply(&s, &ply, &[]).unwrap();
     let op = d.path().join("op");
-    run_ok(&[
+    mvao_ok(&[
         "merge",
         "-q",
         "--radius",
@@ -359,7 +352,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
     // LAS → LAZ and LAS → E57 outputs.
     for (fmt, name) in [("laz", "tls.mvao.laz"), ("e57", "tls.mvao.e57")] {
         let of = d.path().join(fmt);
-        run_ok(&[
+        mvao_ok(&[
             "merge",
             "-q",
             "--radius",

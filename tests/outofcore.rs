@@ -9,34 +9,6 @@ mod common;
 use common::*;
 use std::path::{Path, PathBuf};
 
-fn ok(args: &[&str]) -> String {
-    let r = mvao(args);
-    let err = String::from_utf8_lossy(&r.stderr).into_owned();
-    assert!(r.status.success(), "{args:?}: {err}");
-    err + &String::from_utf8_lossy(&r.stdout)
-}
-
-fn synth(dir: &Path, stations: u32, w: u32, h: u32) -> Vec<PathBuf> {
-    ok(&[
-        "synth",
-        "--stations",
-        &stations.to_string(),
-        "--width",
-        &w.to_string(),
-        "--height",
-        &h.to_string(),
-        "-o",
-        dir.to_str().unwrap(),
-    ]);
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "ply"))
-        .collect();
-    v.sort();
-    v
-}
-
 fn report(dir: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap()
 }
@@ -54,7 +26,7 @@ fn merge(scans: &[PathBuf], out: &Path, extra: &[&str]) -> serde_json::Value {
     ];
     a.extend_from_slice(extra);
     a.extend(scans.iter().map(|p| p.to_str().unwrap()));
-    ok(&a);
+    mvao_ok(&a);
     report(out)
 }
 
@@ -84,7 +56,7 @@ fn products(r: &serde_json::Value) -> (u64, u64) {
 #[test]
 fn reruns_reuse_products_and_crashes_resume_to_identical_outputs() {
     let d = tempfile::tempdir().unwrap();
-    let scans = synth(&d.path().join("site"), 3, 240, 120);
+    let scans = synth_room(&d.path().join("site"), 3, 240, 120);
     let out = d.path().join("out");
     let r = merge(&scans, &out, &[]);
     assert_eq!(products(&r), (3, 0));
@@ -135,7 +107,7 @@ fn reruns_reuse_products_and_crashes_resume_to_identical_outputs() {
 #[test]
 fn per_scan_jobs_give_the_same_result_as_one_run() {
     let d = tempfile::tempdir().unwrap();
-    let scans = synth(&d.path().join("site"), 3, 200, 100);
+    let scans = synth_room(&d.path().join("site"), 3, 200, 100);
     let whole = d.path().join("whole");
     merge(&scans, &whole, &[]);
     let jobs = d.path().join("jobs");
@@ -155,7 +127,7 @@ fn per_scan_jobs_give_the_same_result_as_one_run() {
             jobs.to_str().unwrap(),
         ];
         a.extend(&s);
-        ok(&a);
+        mvao_ok(&a);
     }
     for name in ["station_000", "station_001", "station_002"] {
         let mut a = vec![
@@ -172,7 +144,7 @@ fn per_scan_jobs_give_the_same_result_as_one_run() {
             jobs.to_str().unwrap(),
         ];
         a.extend(&s);
-        ok(&a);
+        mvao_ok(&a);
         let r: serde_json::Value = serde_json::from_slice(
             &std::fs::read(jobs.join(format!("report.{name}.json"))).unwrap(),
         )
@@ -185,7 +157,7 @@ fn per_scan_jobs_give_the_same_result_as_one_run() {
 #[test]
 fn the_plan_skips_pairs_that_cannot_meet() {
     let d = tempfile::tempdir().unwrap();
-    let scans = synth(&d.path().join("site"), 2, 120, 60);
+    let scans = synth_room(&d.path().join("site"), 2, 120, 60);
     // Move the second station's pose 1 km away.
     let mlp = d.path().join("site/alignment.mlp");
     let mut al = mvao::io::align::read_alignment(&mlp).unwrap();
@@ -202,7 +174,7 @@ fn the_plan_skips_pairs_that_cannot_meet() {
         out.to_str().unwrap(),
     ];
     a.extend(scans.iter().map(|p| p.to_str().unwrap()));
-    let text = ok(&a);
+    let text = mvao_ok(&a);
     assert!(text.contains("pairs kept 0, skipped 2"), "{text}");
     assert!(!out.join("work").exists(), "a dry run wrote products");
     let r = merge(&scans, &out, &[]);
@@ -219,7 +191,7 @@ fn the_plan_skips_pairs_that_cannot_meet() {
 #[test]
 fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
     let d = tempfile::tempdir().unwrap();
-    let scans = synth(&d.path().join("site"), 8, 1024, 512);
+    let scans = synth_room(&d.path().join("site"), 8, 1024, 512);
     let free = d.path().join("free");
     let r_free = merge(&scans, &free, &[]);
     let all = r_free["plan"]["all_views_bytes"].as_u64().unwrap();

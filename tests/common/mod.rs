@@ -105,6 +105,39 @@ pub fn mvao(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// Runs the `mvao` binary, expects success, and returns stderr followed by stdout.
+pub fn mvao_ok(args: &[&str]) -> String {
+    let r = mvao(args);
+    let err = String::from_utf8_lossy(&r.stderr).into_owned();
+    assert!(r.status.success(), "{args:?}: {err}");
+    err + &String::from_utf8_lossy(&r.stdout)
+}
+
+/// `mvao synth` of the room with `stations` equirect stations of `w × h` into `dir`; the
+/// station files, sorted.
+pub fn synth_room(dir: &Path, stations: u32, w: u32, h: u32) -> Vec<PathBuf> {
+    mvao_ok(&[
+        "synth",
+        "--scene",
+        "room",
+        "--stations",
+        &stations.to_string(),
+        "--width",
+        &w.to_string(),
+        "--height",
+        &h.to_string(),
+        "-o",
+        dir.to_str().unwrap(),
+    ]);
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "ply"))
+        .collect();
+    v.sort();
+    v
+}
+
 /// A hemisphere of points around a scanner at the origin (radius 3 m, below and around it).
 pub fn dome(n: usize) -> Vec<[f64; 3]> {
     (0..n)
