@@ -50,6 +50,7 @@ pub mod merge;
 pub mod outofcore;
 pub mod pipeline;
 pub mod plot;
+pub mod products;
 pub mod projection;
 pub mod reference;
 pub mod report;
@@ -58,6 +59,5 @@ pub mod sensor;
 pub mod ssao;
 pub mod sweep;
 pub mod synth;
-pub mod work;
 
 pub use error::{Error, Result};

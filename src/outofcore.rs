@@ -19,10 +19,10 @@ use crate::io::output::write_preview;
 use crate::io::results::{self, WriteOptions};
 use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
 use crate::pipeline::{overlaps, prepare_view, robust_diagonal, world_bounds, Config, Observer};
+use crate::products::{self, InputRecord, Manifest, MergeMaps};
 use crate::report::ScanReport;
 use crate::scan::Scan;
 use crate::ssao::SsaoParams;
-use crate::work::{self, InputRecord, Manifest, MergeMaps};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -247,7 +247,7 @@ impl MapCache {
             // Decoding holds the file's bytes beside the maps for a moment.
             let bytes = view_bytes(pixels, 0);
             self.make_room(2 * bytes);
-            let m = work::load_maps_for_merge(dir, key)?;
+            let m = products::load_maps_for_merge(dir, key)?;
             self.loads += 1;
             self.bytes_read += bytes;
             self.used += bytes;
@@ -419,7 +419,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                     .as_ref()
                     .map_or(s.len() as u64, |g| g.rows as u64 * g.cols as u64),
                 data_hash: data_hash(s),
-                key: work::key_from_name(&s.name),
+                key: products::key_from_name(&s.name),
                 pose: s.pose,
             });
         }
@@ -586,7 +586,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 )));
             }
             let v = prepare_view(s, prm.projection, &sp)?;
-            let files = work::save_view(&work_dir, &cat[i].key, &v)?;
+            let files = products::save_view(&work_dir, &cat[i].key, &v)?;
             let (mut dmin, mut dmax) = (f32::INFINITY, 0f32);
             for &d in &v.depth {
                 if d.is_finite() {
@@ -742,7 +742,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         let mut aos: Vec<Vec<f32>> = vec![Vec::new(); pf.scans.len()];
         for &i in &mine {
             let s = &pf.scans[cat[i].index];
-            let own = work::load_view(&work_dir, &cat[i].key)?;
+            let own = products::load_view(&work_dir, &cat[i].key)?;
             merge_read += view_bytes((own.gbuf.width * own.gbuf.height) as u64, s.len() as u64);
             let (own_ssao, no_sample) = own.point_ssao();
             cache.measure();

@@ -5,14 +5,14 @@ mod common;
 
 use glam::{DVec3, Vec3};
 use mvao::pipeline::{prepare_view, PreparedView};
-use mvao::sensor::ProjectionChoice;
-use mvao::ssao::{Estimator, SsaoParams};
-use mvao::synth::{scan_scene, Scene, Station};
-use mvao::work::manifest::{self, write_entry, MVAO_VERSION};
-use mvao::work::{
+use mvao::products::manifest::{self, write_entry, MVAO_VERSION};
+use mvao::products::{
     load_maps_for_merge, load_view, save_view, save_view_with, Check, InputRecord, Manifest,
     MapCompression, SaveOptions,
 };
+use mvao::sensor::ProjectionChoice;
+use mvao::ssao::{Estimator, SsaoParams};
+use mvao::synth::{scan_scene, Scene, Station};
 use serde_json::json;
 use std::fs::{self, File};
 use std::path::{Path, PathBuf};

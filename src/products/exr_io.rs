@@ -12,7 +12,7 @@ use std::io::Cursor;
 use std::path::Path;
 
 /// How the maps are compressed. Both are lossless; `None` is the default because it reads and
-/// writes fastest on local disks (see the report in [`crate::work`]).
+/// writes fastest on local disks (see the report in [`crate::products`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum MapCompression {
     /// Uncompressed scan lines: largest files, least CPU.
