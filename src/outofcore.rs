@@ -18,7 +18,10 @@ use crate::io::dataset::{Dataset, Placer};
 use crate::io::output::write_preview;
 use crate::io::results::{self, WriteOptions};
 use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
-use crate::pipeline::{overlaps, prepare_view, robust_diagonal, world_bounds, Config, Observer};
+use crate::pipeline::{
+    depth_range, may_share_surface, merge_params, prepare_view, robust_diagonal, same_file,
+    world_bounds, Config, Observer,
+};
 use crate::products::{self, InputRecord, Manifest, MergeMaps};
 use crate::report::ScanReport;
 use crate::scan::Scan;
@@ -325,14 +328,6 @@ fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
     Ok(())
 }
 
-/// True when two paths name the same existing file.
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    }
-}
-
 /// Outcome of [`run`].
 pub struct Outcome {
     /// The plan.
@@ -464,15 +459,14 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         .iter()
         .map(|c| (DVec3::from(c.bounds[0]), DVec3::from(c.bounds[1])))
         .collect();
-    let pair_meets = |i: usize, j: usize, reach: f64| {
-        let scale = (b[i].1 - b[i].0).length() + (b[j].1 - b[j].0).length();
-        overlaps(&b[i], &b[j], reach + 1e-6 * scale + 1e-9)
-    };
+    // Before the radii are known only the SSAO reach counts.
+    let pair_meets =
+        |i: usize, j: usize, max_rad: f64| may_share_surface(&b[i], &b[j], tmax, max_rad);
     let mut kept = 0usize;
     let mut point_views = 0u64;
     for (i, c) in cat.iter().enumerate() {
         for j in 0..n {
-            if i == j || pair_meets(i, j, 2.0 * tmax as f64) {
+            if i == j || pair_meets(i, j, 0.0) {
                 if i != j {
                     kept += 1;
                 }
@@ -549,8 +543,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let need: Vec<bool> = (0..n)
         .map(|i| {
             selected(&cat[i])
-                || (!cfg.prepare_only
-                    && (0..n).any(|j| selected(&cat[j]) && pair_meets(i, j, 2.0 * tmax as f64)))
+                || (!cfg.prepare_only && (0..n).any(|j| selected(&cat[j]) && pair_meets(i, j, 0.0)))
         })
         .collect();
     for fi in 0..placer.len() {
@@ -587,13 +580,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             }
             let v = prepare_view(s, prm.projection, &sp)?;
             let files = products::save_view(&work_dir, &cat[i].key, &v)?;
-            let (mut dmin, mut dmax) = (f32::INFINITY, 0f32);
-            for &d in &v.depth {
-                if d.is_finite() {
-                    dmin = dmin.min(d);
-                    dmax = dmax.max(d);
-                }
-            }
+            let (dmin, dmax) = depth_range(&v.depth);
             let (_, no_sample) = v.point_ssao();
             let proj = &v.sensor.projection;
             let sum = Summary {
@@ -653,24 +640,13 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             })?;
         sums[i] = Some(s);
     }
-    let (mut dmin, mut dmax) = (f32::INFINITY, 0.0f32);
-    let mut any_persp = false;
-    for s in sums.iter().flatten().filter(|s| !s.ortho) {
-        any_persp = true;
-        dmin = dmin.min(s.depth_min);
-        dmax = dmax.max(s.depth_max);
-    }
-    if !dmin.is_finite() {
-        dmin = 0.0;
-    }
-    out.merge.dmin = prm.dmin.unwrap_or(dmin);
-    out.merge.dmax = prm.dmax.unwrap_or(dmax);
-    if !any_persp {
-        out.defaults_note += "dmin/dmax unused: every view is orthographic (w_d = 1)";
-    } else if prm.dmin.is_none() || prm.dmax.is_none() {
-        out.defaults_note +=
-            "dmin/dmax = smallest/largest depth over all scans with a sensor position";
-    }
+    let ranges: Vec<(f32, f32)> = sums
+        .iter()
+        .flatten()
+        .filter(|s| !s.ortho)
+        .map(|s| (s.depth_min, s.depth_max))
+        .collect();
+    out.merge = merge_params(prm, &ranges, &mut out.defaults_note);
     let mp = out.merge;
     for s in sums.iter().flatten() {
         for (k, t) in &s.times {
@@ -684,6 +660,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         .iter()
         .map(|s| s.as_ref().map_or(0.0, |s| s.max_radius as f64))
         .collect();
+    let partner = |i: usize, j: usize| j == i || pair_meets(i, j, max_rad[i].max(max_rad[j]));
 
     // Pass 3: merge, one input file at a time.
     std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
@@ -712,12 +689,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut future = Vec::new();
     for fi in 0..placer.len() {
         for i in (0..n).filter(|&i| cat[i].file == fi && selected(&cat[i])) {
-            for j in (0..n).filter(|&j| j != i) {
-                let reach = (2.0 * tmax as f64).max(2.0 * max_rad[i].max(max_rad[j]));
-                if pair_meets(i, j, reach) {
-                    future.push(j);
-                }
-            }
+            future.extend((0..n).filter(|&j| j != i && partner(i, j)));
         }
     }
     let mut cache = MapCache {
@@ -758,13 +730,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                     proj: &own.sensor.projection,
                 };
                 let mut acc = Accum::new(s.len());
-                for j in 0..n {
-                    if j != i {
-                        let reach = (2.0 * tmax as f64).max(2.0 * max_rad[i].max(max_rad[j]));
-                        if !pair_meets(i, j, reach) {
-                            continue;
-                        }
-                    }
+                for j in (0..n).filter(|&j| partner(i, j)) {
                     let pose_j = if j == i { s.pose } else { cat[j].pose };
                     if j == i {
                         let v = merge::View {

@@ -404,35 +404,12 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
     }
     obs.done("prepare", t0.elapsed().as_secs_f64());
 
-    let (mut dmin, mut dmax) = (f32::INFINITY, 0.0f32);
-    for v in views
+    let ranges: Vec<(f32, f32)> = views
         .iter()
         .filter(|v| v.sensor.projection.sensor_model() != crate::projection::SensorModel::Ortho)
-    {
-        for &d in &v.depth {
-            if d.is_finite() {
-                dmin = dmin.min(d);
-                dmax = dmax.max(d);
-            }
-        }
-    }
-    if !dmin.is_finite() {
-        dmin = 0.0;
-    }
-    let mp = MergeParams {
-        neighbors: prm.neighbors,
-        dmin: prm.dmin.unwrap_or(dmin),
-        dmax: prm.dmax.unwrap_or(dmax),
-        border_px: prm.border_px,
-    };
-    if !views
-        .iter()
-        .any(|v| v.sensor.projection.sensor_model() != crate::projection::SensorModel::Ortho)
-    {
-        note += "dmin/dmax unused: every view is orthographic (w_d = 1)";
-    } else if prm.dmin.is_none() || prm.dmax.is_none() {
-        note += "dmin/dmax = smallest/largest depth over all scans with a sensor position";
-    }
+        .map(|v| depth_range(&v.depth))
+        .collect();
+    let mp = merge_params(prm, &ranges, &mut note);
 
     let bounds: Vec<(DVec3, DVec3)> = scans.iter().map(world_bounds).collect();
     let max_rad: Vec<f64> = views
@@ -448,17 +425,10 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         let (ao, st) = if prm.ssao_only {
             (own.clone(), MergeStats::default())
         } else {
-            // Eq. 7 accepts partners within 2·max(rad); SSAO reaches t_max: a pair whose
-            // boxes, grown by the larger of both (and rounding), do not meet shares nothing.
             let skip: Vec<bool> = bounds
                 .iter()
                 .zip(&max_rad)
-                .map(|(b, &rj)| {
-                    let scale = (bounds[i].1 - bounds[i].0).length() + (b.1 - b.0).length();
-                    let margin =
-                        (2.0 * tmax as f64).max(2.0 * max_rad[i].max(rj)) + 1e-6 * scale + 1e-9;
-                    !overlaps(&bounds[i], b, margin)
-                })
+                .map(|(b, &rj)| !may_share_surface(&bounds[i], b, tmax, max_rad[i].max(rj)))
                 .collect();
             merge::merge_scan(
                 i,
@@ -543,8 +513,50 @@ pub fn world_bounds(s: &Scan) -> (DVec3, DVec3) {
     (wlo, whi)
 }
 
+/// True when two scans with world bounds `a` and `b` may see common surface: eq. 7 accepts
+/// partners within 2·rad (`max_rad` = the larger radius of both scans, 0 when unknown) and
+/// SSAO reaches `t_max`, so boxes that do not meet when grown by the larger of both (and by
+/// rounding) share nothing.
+pub fn may_share_surface(a: &(DVec3, DVec3), b: &(DVec3, DVec3), tmax: f32, max_rad: f64) -> bool {
+    let scale = (a.1 - a.0).length() + (b.1 - b.0).length();
+    let margin = (2.0 * tmax as f64).max(2.0 * max_rad) + 1e-6 * scale + 1e-9;
+    overlaps(a, b, margin)
+}
+
+/// Smallest and largest finite depth (∞, 0 when there is none).
+pub fn depth_range(depth: &[f32]) -> (f32, f32) {
+    depth
+        .iter()
+        .filter(|d| d.is_finite())
+        .fold((f32::INFINITY, 0.0f32), |(lo, hi), &d| {
+            (lo.min(d), hi.max(d))
+        })
+}
+
+/// The merge parameters of a run from the depth ranges of its views with a sensor position
+/// (`d_min`/`d_max` defaults), noting how they were derived.
+pub fn merge_params(prm: &ComputeParams, ranges: &[(f32, f32)], note: &mut String) -> MergeParams {
+    let (mut dmin, dmax) = ranges.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), r| {
+        (lo.min(r.0), hi.max(r.1))
+    });
+    if !dmin.is_finite() {
+        dmin = 0.0;
+    }
+    if ranges.is_empty() {
+        *note += "dmin/dmax unused: every view is orthographic (w_d = 1)";
+    } else if prm.dmin.is_none() || prm.dmax.is_none() {
+        *note += "dmin/dmax = smallest/largest depth over all scans with a sensor position";
+    }
+    MergeParams {
+        neighbors: prm.neighbors,
+        dmin: prm.dmin.unwrap_or(dmin),
+        dmax: prm.dmax.unwrap_or(dmax),
+        border_px: prm.border_px,
+    }
+}
+
 /// True when two boxes, grown by `margin`, intersect.
-pub fn overlaps(a: &(DVec3, DVec3), b: &(DVec3, DVec3), margin: f64) -> bool {
+fn overlaps(a: &(DVec3, DVec3), b: &(DVec3, DVec3), margin: f64) -> bool {
     (a.0 - margin).cmple(b.1).all() && (b.0 - margin).cmple(a.1).all()
 }
 
@@ -708,7 +720,7 @@ pub fn run(cfg: &Config) -> Result<Report> {
 }
 
 /// True when two paths name the same existing file.
-fn same_file(a: &Path, b: &Path) -> bool {
+pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
     match (a.canonicalize(), b.canonicalize()) {
         (Ok(x), Ok(y)) => x == y,
         _ => false,

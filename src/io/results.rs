@@ -215,78 +215,50 @@ pub fn write(
     }
 }
 
-/// The result of scan `i` as a table in world coordinates (valid points only).
+/// The result of scan `i` as a table in world coordinates (valid points only), from the
+/// file's own f64 coordinates and the exact f64 placement.
 pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Result<PointTable> {
     let s = &ds.scans[i];
-    let (fi, _) = ds.origin[i];
+    let (fi, k) = ds.origin[i];
     let file = &ds.files[fi];
-    let m = ds.file_to_world[i];
-    let k = ds.origin[i].1;
+    let rec_ao = per_record(ds, i, ao);
+    let per_record_table = |xyz: Vec<[f64; 3]>, attrs: Attributes| {
+        let (rgb, intensity, extra) = attrs;
+        PointTable {
+            name: s.name.clone(),
+            xyz,
+            pose: glam::DMat4::IDENTITY,
+            rgb: Some(colours(rgb.as_deref(), &rec_ao, opts)),
+            intensity,
+            ao: rec_ao.clone(),
+            grid: None,
+            extra,
+        }
+    };
     let t = match &file.container {
-        Container::E57(e) => {
-            Some(e.point_table(k, &per_record(ds, i, ao), opts.gamma, opts.color)?)
+        Container::E57(e) => e.point_table(k, &rec_ao, opts.gamma, opts.color)?,
+        Container::Ptx(p) => p.point_table(k, &rec_ao, opts.gamma, opts.color)?,
+        Container::Ply(ply) => {
+            let xyz = ply.vertex_xyz().ok_or_else(|| {
+                Error::format(&file.path, "cannot read x/y/z of the vertex element")
+            })?;
+            per_record_table(xyz, ply_attributes(ply))
         }
-        Container::Ptx(p) => {
-            Some(p.point_table(k, &per_record(ds, i, ao), opts.gamma, opts.color)?)
-        }
-        Container::Ply(_) | Container::Las(_) => None,
-    };
-    if let Some(t) = t {
-        return Ok(valid_rows(t, &s.source_index, m));
-    }
-    // World coordinates from the file's own f64 coordinates and the exact f64 placement.
-    let (orig, (in_rgb, intensity, extra)) = match &file.container {
-        Container::Ply(ply) => (
-            ply.vertex_xyz().unwrap_or_default(),
-            ply_attributes(ply, &s.source_index),
+        Container::Las(l) => per_record_table(
+            l.raw_scan(&s.name).xyz,
+            (l.rgb8(), Some(l.intensities()), l.extra_columns()),
         ),
-        Container::Las(l) => {
-            let pick = |i: &u32| *i as usize;
-            let rgb = l
-                .rgb8()
-                .map(|c| s.source_index.iter().map(|i| c[pick(i)]).collect());
-            let inten = l.intensities();
-            let intensity = Some(s.source_index.iter().map(|i| inten[pick(i)]).collect());
-            let extra = l
-                .extra_columns()
-                .into_iter()
-                .map(|(n, v)| (n, s.source_index.iter().map(|i| v[pick(i)]).collect()))
-                .collect();
-            (l.raw_scan(&s.name).xyz, (rgb, intensity, extra))
-        }
-        _ => unreachable_attrs(),
     };
-    let xyz: Vec<[f64; 3]> = s
-        .source_index
-        .iter()
-        .zip(&s.points)
-        .map(|(&vi, p)| match orig.get(vi as usize) {
-            Some(o) => m.transform_point3(DVec3::from_array(*o)).to_array(),
-            None => s.pose.transform_point3(p.as_dvec3()).to_array(),
-        })
-        .collect();
-    let rgb = colours(in_rgb.as_deref(), ao, opts);
-    let grid = s.grid.as_ref().map(|g| RawGrid {
-        rows: g.rows,
-        cols: g.cols,
-        row: g.row.clone(),
-        col: g.col.clone(),
-    });
-    Ok(PointTable {
-        name: s.name.clone(),
-        xyz,
-        pose: glam::DMat4::IDENTITY,
-        rgb: Some(rgb),
-        intensity,
-        ao: ao.to_vec(),
-        grid,
-        extra,
-    })
-}
-
-/// Never reached: non-PLY containers return above.
-fn unreachable_attrs() -> (Vec<[f64; 3]>, Attributes) {
-    (Vec::new(), (None, None, Vec::new()))
+    let mut t = valid_rows(t, &s.source_index, ds.file_to_world[i]);
+    if t.grid.is_none() {
+        t.grid = s.grid.as_ref().map(|g| RawGrid {
+            rows: g.rows,
+            cols: g.cols,
+            row: g.row.clone(),
+            col: g.col.clone(),
+        });
+    }
+    Ok(t)
 }
 
 /// AO per record of scan `i` (1 for records without a valid point).
@@ -349,35 +321,33 @@ pub fn colours(input: Option<&[[u8; 3]]>, ao: &[f32], opts: WriteOptions) -> Vec
         .collect()
 }
 
-/// Colour, intensity and other scalar properties of a PLY's vertices at `index`.
+/// Colour, intensity and other scalar properties per record.
 type Attributes = (
     Option<Vec<[u8; 3]>>,
     Option<Vec<f32>>,
     Vec<(String, Vec<f64>)>,
 );
 
-fn ply_attributes(ply: &PlyFile, index: &[u32]) -> Attributes {
-    let pick = |col: Vec<f64>| -> Vec<f64> { index.iter().map(|&i| col[i as usize]).collect() };
+/// A PLY's vertex colour, intensity and other scalar properties (per vertex).
+fn ply_attributes(ply: &PlyFile) -> Attributes {
     let rgb = match (
         ply.scalar_column("vertex", "red"),
         ply.scalar_column("vertex", "green"),
         ply.scalar_column("vertex", "blue"),
     ) {
         (Some(r), Some(g), Some(b)) => Some(
-            index
-                .iter()
-                .map(|&i| {
-                    let i = i as usize;
-                    [r[i], g[i], b[i]].map(|v| v.clamp(0.0, 255.0) as u8)
-                })
+            r.iter()
+                .zip(&g)
+                .zip(&b)
+                .map(|((r, g), b)| [*r, *g, *b].map(|v| v.clamp(0.0, 255.0) as u8))
                 .collect(),
         ),
         _ => None,
     };
     let intensity = ply
         .scalar_column("vertex", "intensity")
-        .map(|c| pick(c).iter().map(|&v| v as f32).collect());
-    const SKIP: [&str; 12] = [
+        .map(|c| c.iter().map(|&v| v as f32).collect());
+    const SKIP: [&str; 14] = [
         "x",
         "y",
         "z",
@@ -390,15 +360,17 @@ fn ply_attributes(ply: &PlyFile, index: &[u32]) -> Attributes {
         "row",
         "col",
         "nx",
+        "ny",
+        "nz",
     ];
     let mut extra = Vec::new();
     if let Some(ei) = ply.element("vertex") {
         for p in &ply.header.elements[ei].props {
-            if SKIP.contains(&p.name.as_str()) || p.name == "ny" || p.name == "nz" {
+            if SKIP.contains(&p.name.as_str()) {
                 continue;
             }
             if let Some(c) = ply.scalar_column("vertex", &p.name) {
-                extra.push((p.name.clone(), pick(c)));
+                extra.push((p.name.clone(), c));
             }
         }
     }

@@ -82,11 +82,6 @@ impl Accum {
         }
     }
 
-    /// Bytes held.
-    pub fn bytes(&self) -> usize {
-        self.num.len() * 8
-    }
-
     /// The merged AO: Σ SSAO·w / Σ w, or the point's own SSAO (counted) where Σ w = 0.
     pub fn finish(self, own: &[f32]) -> (Vec<f32>, MergeStats) {
         let mut st = self.stats;
