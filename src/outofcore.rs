@@ -27,6 +27,7 @@ use crate::report::ScanReport;
 use crate::scan::Scan;
 use crate::ssao::SsaoParams;
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -155,44 +156,43 @@ pub fn default_budget() -> u64 {
 }
 
 /// A fingerprint of what a scan's products depend on: local points, normals and grid.
+/// Blocks of values are hashed in parallel and the digest hashes their digests in order.
 fn data_hash(s: &Scan) -> String {
-    let mut h = xxhash_rust::xxh3::Xxh3::new();
-    // Values are staged into a buffer so the hasher sees large slices, not 4-byte updates.
-    let mut buf: Vec<u8> = Vec::with_capacity(1 << 16);
-    let mut feed = |h: &mut xxhash_rust::xxh3::Xxh3, vals: &mut dyn Iterator<Item = [u8; 4]>| {
-        for v in vals {
-            buf.extend_from_slice(&v);
-            if buf.len() >= (1 << 16) {
-                h.update(&buf);
-                buf.clear();
-            }
+    const BLOCK: usize = 1 << 16;
+    fn blocks<T: Sync>(v: &[T], bytes: impl Fn(&T, &mut Vec<u8>) + Sync) -> Vec<u128> {
+        v.par_chunks(BLOCK)
+            .map(|c| {
+                let mut buf = Vec::with_capacity(c.len() * 12);
+                for x in c {
+                    bytes(x, &mut buf);
+                }
+                xxhash_rust::xxh3::xxh3_128(&buf)
+            })
+            .collect()
+    }
+    let vec3 = |p: &glam::Vec3, b: &mut Vec<u8>| {
+        for v in p.to_array() {
+            b.extend_from_slice(&v.to_le_bytes());
         }
-        h.update(&buf);
-        buf.clear();
     };
-    feed(
-        &mut h,
-        &mut s
-            .points
-            .iter()
-            .flat_map(|p| p.to_array())
-            .map(f32::to_le_bytes),
-    );
+    let u32le = |v: &u32, b: &mut Vec<u8>| b.extend_from_slice(&v.to_le_bytes());
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    let mut feed = |tag: &[u8], d: Vec<u128>| {
+        h.update(tag);
+        h.update(&(d.len() as u64).to_le_bytes());
+        for x in d {
+            h.update(&x.to_le_bytes());
+        }
+    };
+    feed(b"p", blocks(&s.points, vec3));
     if let Some(n) = &s.normals {
-        h.update(b"n");
-        feed(
-            &mut h,
-            &mut n.iter().flat_map(|p| p.to_array()).map(f32::to_le_bytes),
-        );
+        feed(b"n", blocks(n, vec3));
     }
     if let Some(g) = &s.grid {
-        h.update(b"g");
-        h.update(&g.rows.to_le_bytes());
-        h.update(&g.cols.to_le_bytes());
-        feed(
-            &mut h,
-            &mut g.row.iter().chain(&g.col).map(|v| v.to_le_bytes()),
-        );
+        let dims = [u128::from(g.rows), u128::from(g.cols)].to_vec();
+        feed(b"g", dims);
+        feed(b"r", blocks(&g.row, u32le));
+        feed(b"c", blocks(&g.col, u32le));
     }
     format!("{:032x}", h.digest128())
 }

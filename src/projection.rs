@@ -184,7 +184,16 @@ pub fn floor_i64(v: f32) -> i64 {
 #[inline]
 pub fn wrap_angle(a: f32) -> f32 {
     use std::f32::consts::{PI, TAU};
-    let mut r = a % TAU;
+    // The common case (a difference of two angles) needs no division.
+    if a > -PI && a <= PI {
+        return a;
+    }
+    let mut r = if a.abs() < 2.0 * TAU { a } else { a % TAU };
+    if r > PI {
+        r -= TAU;
+    } else if r <= -PI {
+        r += TAU;
+    }
     if r > PI {
         r -= TAU;
     } else if r <= -PI {
@@ -247,8 +256,8 @@ impl Projection {
                 if !(depth > 0.0 && depth.is_finite()) {
                     return None;
                 }
-                let az = wrap_angle(s.y.atan2(s.x) - az_ref);
-                let el = s.z.atan2(r2.sqrt());
+                let az = wrap_angle(fast_atan2(s.y, s.x) - az_ref);
+                let el = fast_atan2(s.z, r2.sqrt());
                 Some(Projected {
                     x: sx * az + ox,
                     y: sy * el + oy,
@@ -439,4 +448,34 @@ pub fn angular_radius(r: f32, depth: f32) -> f32 {
         return 89f32.to_radians();
     }
     (r / depth).asin().min(89f32.to_radians())
+}
+
+/// `atan2(y, x)` in `(−π, π]` to within 3·10⁻⁷ rad (odd minimax-fitted polynomial of degree
+/// 13 on `[0, 1]` after octant reduction).
+#[inline]
+pub fn fast_atan2(y: f32, x: f32) -> f32 {
+    let (ax, ay) = (x.abs(), y.abs());
+    let (mn, mx) = if ax < ay { (ax, ay) } else { (ay, ax) };
+    if !(mx > 0.0) {
+        return if x < 0.0 || (x == 0.0 && x.is_sign_negative()) {
+            std::f32::consts::PI.copysign(y)
+        } else {
+            0.0f32.copysign(y)
+        };
+    }
+    let q = mn / mx;
+    let s = q * q;
+    let mut r = q
+        * (0.999_996_1
+            + s * (-0.333_173_7
+                + s * (0.198_078_34
+                    + s * (-0.132_334_12
+                        + s * (0.079_624_95 + s * (-0.033_605_33 + s * 0.006_812_162))))));
+    if ay > ax {
+        r = std::f32::consts::FRAC_PI_2 - r;
+    }
+    if x < 0.0 {
+        r = std::f32::consts::PI - r;
+    }
+    r.copysign(y)
 }

@@ -12,6 +12,17 @@ pub fn write_atomic<F>(path: &Path, fill: F) -> Result<()>
 where
     F: FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
 {
+    write_atomic_with(path, true, fill)
+}
+
+/// [`write_atomic`], syncing the content to disk before the rename only when `sync`. Skipping
+/// the sync is for files whose readers verify a checksum recorded elsewhere (work-directory
+/// products): after a power loss such a file may be empty or torn, which the reader detects,
+/// whereas a kill of the process alone never loses what was written.
+pub fn write_atomic_with<F>(path: &Path, sync: bool, fill: F) -> Result<()>
+where
+    F: FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+{
     let tmp = temp_path(path);
     let res = (|| {
         let file = File::create(&tmp)?;
@@ -19,7 +30,9 @@ where
         fill(&mut w)?;
         w.flush()?;
         let file = w.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
+        if sync {
+            file.sync_all()?;
+        }
         Ok(())
     })();
     match res {

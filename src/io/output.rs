@@ -33,7 +33,7 @@ pub fn grey(ao: f32, gamma: f32) -> u8 {
 
 /// Writes `ply` with per-vertex `ao` (one value per vertex, all finite) and colours to `path`.
 pub fn write_result_ply(
-    mut ply: PlyFile,
+    ply: &PlyFile,
     ao: &[f32],
     gamma: f32,
     color: ColorMode,
@@ -47,32 +47,31 @@ pub fn write_result_ply(
         )));
     }
     let aof: Vec<f64> = ao.iter().map(|&a| a as f64).collect();
-    ply.set_scalar_column("vertex", "ao", ScalarType::F32, &aof)?;
     let has_rgb = ["red", "green", "blue"]
         .iter()
         .all(|c| ply.has_property("vertex", c));
     let greys: Vec<f64> = ao.iter().map(|&a| grey(a, gamma) as f64).collect();
-    for c in ["red", "green", "blue"] {
-        if has_rgb {
-            match color {
-                ColorMode::Keep => {}
-                ColorMode::Replace => ply.set_scalar_column("vertex", c, ScalarType::U8, &greys)?,
-                ColorMode::Modulate => {
-                    let orig = ply.scalar_column("vertex", c).unwrap_or_default();
-                    let m: Vec<f64> = orig
-                        .iter()
-                        .zip(&greys)
-                        .map(|(o, g)| o * g / 255.0)
-                        .collect();
-                    ply.set_scalar_column("vertex", c, ScalarType::U8, &m)?;
-                }
-            }
-        } else {
-            ply.set_scalar_column("vertex", c, ScalarType::U8, &greys)?;
+    let mut modulated: Vec<Vec<f64>> = Vec::new();
+    if has_rgb && color == ColorMode::Modulate {
+        for c in ["red", "green", "blue"] {
+            let orig = ply.scalar_column("vertex", c).unwrap_or_default();
+            modulated.push(
+                orig.iter()
+                    .zip(&greys)
+                    .map(|(o, g)| o * g / 255.0)
+                    .collect(),
+            );
         }
     }
-    ply.header.comments.push(comment.to_string());
-    ply.write_path(path)
+    let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![("ao", ScalarType::F32, &aof)];
+    for (k, c) in ["red", "green", "blue"].into_iter().enumerate() {
+        match (has_rgb, color) {
+            (true, ColorMode::Keep) => {}
+            (true, ColorMode::Modulate) => cols.push((c, ScalarType::U8, &modulated[k])),
+            _ => cols.push((c, ScalarType::U8, &greys)),
+        }
+    }
+    ply.write_path_with_columns(path, "vertex", &cols, &[comment.to_string()])
 }
 
 /// Largest preview side; bigger maps are box-downsampled by an integer factor.
@@ -151,7 +150,7 @@ mod tests {
         let ao = [0.5f32, 1.0];
         let get = |mode: ColorMode| {
             let p = dir.path().join(format!("{mode:?}.ply"));
-            write_result_ply(ply.clone(), &ao, 1.0, mode, "test", &p).unwrap();
+            write_result_ply(&ply, &ao, 1.0, mode, "test", &p).unwrap();
             let o = PlyFile::read_path(&p).unwrap();
             assert_eq!(o.scalar_column("vertex", "ao").unwrap(), vec![0.5, 1.0]);
             o.scalar_column("vertex", "red").unwrap()
@@ -171,7 +170,7 @@ mod tests {
         )
         .unwrap();
         let p = dir.path().join("bare.ply");
-        write_result_ply(bare, &ao, 2.0, ColorMode::Keep, "test", &p).unwrap();
+        write_result_ply(&bare, &ao, 2.0, ColorMode::Keep, "test", &p).unwrap();
         let o = PlyFile::read_path(&p).unwrap();
         // gamma 2: 0.5^(1/2) = 0.7071 → 180
         assert_eq!(
@@ -180,7 +179,7 @@ mod tests {
         );
         // Non-finite AO is refused, and nothing is written.
         let q = dir.path().join("nan.ply");
-        assert!(write_result_ply(ply, &[f32::NAN, 1.0], 1.0, ColorMode::Keep, "t", &q).is_err());
+        assert!(write_result_ply(&ply, &[f32::NAN, 1.0], 1.0, ColorMode::Keep, "t", &q).is_err());
         assert!(!q.exists());
     }
 

@@ -4,6 +4,7 @@
 //! reading a fixed-stride vertex block is one bulk read.
 
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 use std::fs::File;
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
 use std::path::Path;
@@ -165,9 +166,14 @@ impl PlyFile {
         match layout {
             Layout::Fixed { stride, bytes } => {
                 let off = field_offset(&def.props, &[], pi)?;
-                for row in bytes.chunks_exact(stride.max(1)) {
-                    out.push(ty.read_f64(row, off)?);
+                if off + ty.size() > stride {
+                    return None;
                 }
+                // In range for every row (checked above), so each read succeeds.
+                bytes
+                    .par_chunks_exact(stride.max(1))
+                    .map(|row| ty.read_f64(row, off).unwrap_or(f64::NAN))
+                    .collect_into_vec(&mut out);
             }
             Layout::Rows { .. } => {
                 layout.for_each_row(|row| {
@@ -344,6 +350,142 @@ impl PlyFile {
     /// Writes the file as `binary_little_endian`, keeping comments, obj_info and every element,
     /// atomically (temporary file, then rename).
     pub fn write_path(&self, path: &Path) -> Result<()> {
+        let head = self.header_text(path)?;
+        crate::io::atomic::write_atomic(path, |w| {
+            w.write_all(head.as_bytes())?;
+            for body in &self.data {
+                w.write_all(&body.bytes)?;
+            }
+            Ok(())
+        })
+    }
+
+    /// Writes this file with scalar columns of `element` set to `columns` (name, type of a new
+    /// column, one value per row) and `comments` added, without changing `self`: the result
+    /// equals [`PlyFile::set_scalar_column`] for each column, then the comments, then
+    /// [`PlyFile::write_path`]. Existing columns keep their type. Rows of fixed size are
+    /// copied and extended once, in parallel; other layouts take the general path.
+    pub fn write_path_with_columns(
+        &self,
+        path: &Path,
+        element: &str,
+        columns: &[(&str, ScalarType, &[f64])],
+        comments: &[String],
+    ) -> Result<()> {
+        let general = || -> Result<()> {
+            let mut ply = self.clone();
+            for &(name, ty, vals) in columns {
+                ply.set_scalar_column(element, name, ty, vals)?;
+            }
+            ply.header.comments.extend(comments.iter().cloned());
+            ply.write_path(path)
+        };
+        let Some(ei) = self.header.elements.iter().position(|e| e.name == element) else {
+            return general();
+        };
+        let (Some(def), Some(body)) = (self.header.elements.get(ei), self.data.get(ei)) else {
+            return general();
+        };
+        let Some(Layout::Fixed { stride, bytes }) = Layout::of(def, body) else {
+            return general();
+        };
+        if stride == 0 || columns.iter().any(|c| c.2.len() != def.count) {
+            return general();
+        }
+        // Where each column goes: (offset in the output row, type, values).
+        let mut out_def = def.clone();
+        let mut fields: Vec<(usize, ScalarType, &[f64])> = Vec::with_capacity(columns.len());
+        let mut out_stride = stride;
+        for &(name, ty, vals) in columns {
+            match out_def.props.iter().position(|p| p.name == name) {
+                Some(pi) => {
+                    let PropertyKind::Scalar(t) = out_def.props[pi].kind else {
+                        return general();
+                    };
+                    let Some(off) = field_offset(&out_def.props, &[], pi) else {
+                        return general();
+                    };
+                    fields.push((off, t, vals));
+                }
+                None => {
+                    if check_name(name).is_err() {
+                        return general();
+                    }
+                    fields.push((out_stride, ty, vals));
+                    out_stride += ty.size();
+                    out_def.props.push(Property {
+                        name: name.to_string(),
+                        kind: PropertyKind::Scalar(ty),
+                    });
+                }
+            }
+        }
+        let mut header = self.header.clone();
+        header.elements[ei] = out_def;
+        header.comments.extend(comments.iter().cloned());
+        let shell = PlyFile {
+            header,
+            data: Vec::new(),
+        };
+        let head = shell.header_text_unchecked(path)?;
+        for (k, d) in self.header.elements.iter().enumerate() {
+            if k != ei {
+                let b = self.data.get(k).ok_or_else(|| {
+                    Error::Param(format!(
+                        "cannot write {}: element bodies missing",
+                        path.display()
+                    ))
+                })?;
+                if Layout::of(d, b).is_none() {
+                    return general();
+                }
+            }
+        }
+        // Rows are built in parallel, a batch at a time, so the copy stays small.
+        const ROWS: usize = 1 << 15;
+        let build = |first: usize, chunk: &[u8]| -> Vec<u8> {
+            let n = chunk.len() / stride;
+            let mut out = vec![0u8; n * out_stride];
+            for (r, (src, dst)) in chunk
+                .chunks_exact(stride)
+                .zip(out.chunks_exact_mut(out_stride))
+                .enumerate()
+            {
+                dst[..stride].copy_from_slice(src);
+                for &(off, ty, vals) in &fields {
+                    let e = ty.encode(vals[first + r]);
+                    dst[off..off + e.len].copy_from_slice(e.as_slice());
+                }
+            }
+            out
+        };
+        crate::io::atomic::write_atomic(path, |w| {
+            w.write_all(head.as_bytes())?;
+            for (k, b) in self.data.iter().enumerate() {
+                if k != ei {
+                    w.write_all(&b.bytes)?;
+                    continue;
+                }
+                let chunks: Vec<&[u8]> = bytes.chunks(stride * ROWS).collect();
+                for batch in chunks.chunks(8).enumerate() {
+                    let (bi, batch) = batch;
+                    let built: Vec<Vec<u8>> = batch
+                        .par_iter()
+                        .enumerate()
+                        .map(|(ci, c)| build((bi * 8 + ci) * ROWS, c))
+                        .collect();
+                    for b in &built {
+                        w.write_all(b)?;
+                    }
+                }
+            }
+            Ok(())
+        })
+    }
+
+    /// The header as written by [`PlyFile::write_path`] (binary little-endian), after checking
+    /// that every body matches its declaration.
+    fn header_text(&self, path: &Path) -> Result<String> {
         if self.data.len() != self.header.elements.len() {
             return Err(Error::Param(format!(
                 "cannot write {}: {} element bodies for {} declared elements",
@@ -352,6 +494,21 @@ impl PlyFile {
                 self.header.elements.len()
             )));
         }
+        for (def, body) in self.header.elements.iter().zip(&self.data) {
+            if Layout::of(def, body).is_none() {
+                return Err(Error::Param(format!(
+                    "cannot write {}: element '{}': stored rows do not match the header \
+                     declaration",
+                    path.display(),
+                    def.name
+                )));
+            }
+        }
+        self.header_text_unchecked(path)
+    }
+
+    /// The header text alone (names checked, bodies not).
+    fn header_text_unchecked(&self, path: &Path) -> Result<String> {
         let mut head = String::with_capacity(1024);
         head.push_str("ply\nformat binary_little_endian 1.0\n");
         for c in &self.header.comments {
@@ -364,7 +521,7 @@ impl PlyFile {
             head.push_str(&one_line(c));
             head.push('\n');
         }
-        for (def, body) in self.header.elements.iter().zip(&self.data) {
+        for def in &self.header.elements {
             let bad = |m: String| {
                 Error::Param(format!(
                     "cannot write {}: element '{}': {m}",
@@ -373,9 +530,6 @@ impl PlyFile {
                 ))
             };
             check_name(&def.name).map_err(bad)?;
-            if Layout::of(def, body).is_none() {
-                return Err(bad("stored rows do not match the header declaration".into()));
-            }
             head.push_str(&format!("element {} {}\n", def.name, def.count));
             for p in &def.props {
                 check_name(&p.name).map_err(bad)?;
@@ -393,13 +547,7 @@ impl PlyFile {
             }
         }
         head.push_str("end_header\n");
-        crate::io::atomic::write_atomic(path, |w| {
-            w.write_all(head.as_bytes())?;
-            for body in &self.data {
-                w.write_all(&body.bytes)?;
-            }
-            Ok(())
-        })
+        Ok(head)
     }
 
     /// Builds a file with a single `vertex` element from named scalar columns of equal length
@@ -492,30 +640,25 @@ impl PlyFile {
                 let ox = field_offset(&def.props, &[], ix)?;
                 let oy = field_offset(&def.props, &[], iy)?;
                 let oz = field_offset(&def.props, &[], iz)?;
+                if [(ox, tx), (oy, ty), (oz, tz)]
+                    .iter()
+                    .any(|&(o, t)| o + t.size() > stride)
+                {
+                    return None;
+                }
+                // In range for every row (checked above), so each read succeeds.
+                let rd =
+                    |t: ScalarType, row: &[u8], o: usize| t.read_f64(row, o).unwrap_or(f64::NAN);
+                let rows = bytes.par_chunks_exact(stride.max(1));
                 if [tx, ty, tz] == [ScalarType::F32; 3] {
-                    for row in bytes.chunks_exact(stride.max(1)) {
-                        out.push([
-                            f64::from(f32::from_le_bytes(le_array(row, ox)?)),
-                            f64::from(f32::from_le_bytes(le_array(row, oy)?)),
-                            f64::from(f32::from_le_bytes(le_array(row, oz)?)),
-                        ]);
-                    }
-                } else if [tx, ty, tz] == [ScalarType::F64; 3] {
-                    for row in bytes.chunks_exact(stride.max(1)) {
-                        out.push([
-                            f64::from_le_bytes(le_array(row, ox)?),
-                            f64::from_le_bytes(le_array(row, oy)?),
-                            f64::from_le_bytes(le_array(row, oz)?),
-                        ]);
-                    }
+                    let f = |row: &[u8], o: usize| {
+                        le_array(row, o).map_or(f64::NAN, |b| f64::from(f32::from_le_bytes(b)))
+                    };
+                    rows.map(|row| [f(row, ox), f(row, oy), f(row, oz)])
+                        .collect_into_vec(&mut out);
                 } else {
-                    for row in bytes.chunks_exact(stride.max(1)) {
-                        out.push([
-                            tx.read_f64(row, ox)?,
-                            ty.read_f64(row, oy)?,
-                            tz.read_f64(row, oz)?,
-                        ]);
-                    }
+                    rows.map(|row| [rd(tx, row, ox), rd(ty, row, oy), rd(tz, row, oz)])
+                        .collect_into_vec(&mut out);
                 }
             }
             Layout::Rows { .. } => {

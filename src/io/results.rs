@@ -148,7 +148,8 @@ pub fn write(
                 for (k, &vi) in s.source_index.iter().enumerate() {
                     per_vertex[vi as usize] = ao[i][k];
                 }
-                let ply: PlyFile = if s.skipped_nonfinite > 0 {
+                let kept: PlyFile;
+                let ply: &PlyFile = if s.skipped_nonfinite > 0 {
                     let mut keep = vec![false; s.vertex_count];
                     for &vi in &s.source_index {
                         keep[vi as usize] = true;
@@ -158,9 +159,10 @@ pub fn write(
                         .iter()
                         .map(|&vi| per_vertex[vi as usize])
                         .collect();
-                    ply.as_ref().clone().retain_vertices(&keep)?
+                    kept = ply.as_ref().clone().retain_vertices(&keep)?;
+                    &kept
                 } else {
-                    ply.as_ref().clone()
+                    ply.as_ref()
                 };
                 write_result_ply(
                     ply,

@@ -8,6 +8,7 @@ use crate::error::{Error, Result};
 use crate::projection::SensorModel;
 use crate::scan::{Grid, Scan};
 use glam::Vec3;
+use rayon::prelude::*;
 use std::path::Path;
 
 /// Names accepted for per-vertex grid indices, as (row, column) pairs.
@@ -116,13 +117,13 @@ fn grid_cells(ply: &PlyFile, n: usize) -> Option<Grid> {
             continue;
         };
         let ok = |v: &f64| v.is_finite() && *v >= 0.0 && *v < 1e7 && v.fract() == 0.0;
-        if !r.iter().all(ok) || !c.iter().all(ok) || r.is_empty() {
+        if r.is_empty() || !r.par_iter().all(ok) || !c.par_iter().all(ok) {
             return None;
         }
-        let row: Vec<u32> = r.iter().map(|&v| v as u32).collect();
-        let col: Vec<u32> = c.iter().map(|&v| v as u32).collect();
-        let rows = row.iter().max().map_or(0, |m| m + 1);
-        let cols = col.iter().max().map_or(0, |m| m + 1);
+        let row: Vec<u32> = r.par_iter().map(|&v| v as u32).collect();
+        let col: Vec<u32> = c.par_iter().map(|&v| v as u32).collect();
+        let rows = row.par_iter().max().map_or(0, |m| m + 1);
+        let cols = col.par_iter().max().map_or(0, |m| m + 1);
         return Some(Grid {
             rows,
             cols,

@@ -8,6 +8,7 @@ use super::raw::{RawGrid, RawScan};
 use crate::error::{Error, Result};
 use crate::scan::{Grid, Scan};
 use glam::{DMat4, DVec3, Vec3};
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// A scan file format.
@@ -258,7 +259,7 @@ pub const RECENTRE_ABOVE: f64 = 1e5;
 /// from the file coordinates: the declared scanner position, else zero for ordinary
 /// scanner-local data, else (coordinates beyond [`RECENTRE_ABOVE`], scanner unknown) the
 /// centre of the bounding box. The file's own pose and the offset go into [`Scan::pose`].
-pub fn scan_from_raw(raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
+pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
     let n = raw.xyz.len();
     if u32::try_from(n).is_err() {
         return Err(Error::format(
@@ -273,35 +274,56 @@ pub fn scan_from_raw(raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
         Some(s) if s.is_finite() => s,
         _ => recentre_offset(&raw.xyz),
     };
-    let mut points = Vec::with_capacity(n);
-    let mut source_index = Vec::with_capacity(n);
-    let mut normals = raw.normals.as_ref().map(|_| Vec::with_capacity(n));
-    let mut cells = raw
-        .grid
-        .as_ref()
-        .map(|_| (Vec::with_capacity(n), Vec::with_capacity(n)));
-    let mut skipped = 0usize;
-    for (i, p) in raw.xyz.iter().enumerate() {
-        let v = Vec3::new(
+    let local = |p: &[f64; 3]| {
+        Vec3::new(
             (p[0] - offset.x) as f32,
             (p[1] - offset.y) as f32,
             (p[2] - offset.z) as f32,
-        );
-        if !v.is_finite() {
-            skipped += 1;
-            continue;
+        )
+    };
+    // An unusable normal becomes zero and is re-estimated downstream.
+    let unit = |v: &Vec3| v.try_normalize().unwrap_or(Vec3::ZERO);
+    let all_finite = raw.xyz.par_iter().all(|p| local(p).is_finite());
+    let (points, source_index, normals, cells, skipped) = if all_finite {
+        // The usual case, in parallel: every vertex is a point.
+        let points: Vec<Vec3> = raw.xyz.par_iter().map(local).collect();
+        let source_index: Vec<u32> = (0..n as u32).collect();
+        let normals = raw
+            .normals
+            .as_ref()
+            .map(|g| g.par_iter().map(unit).collect::<Vec<Vec3>>());
+        let cells = raw
+            .grid
+            .as_mut()
+            .map(|g| (std::mem::take(&mut g.row), std::mem::take(&mut g.col)));
+        (points, source_index, normals, cells, 0usize)
+    } else {
+        let mut points = Vec::with_capacity(n);
+        let mut source_index = Vec::with_capacity(n);
+        let mut normals = raw.normals.as_ref().map(|_| Vec::with_capacity(n));
+        let mut cells = raw
+            .grid
+            .as_ref()
+            .map(|_| (Vec::with_capacity(n), Vec::with_capacity(n)));
+        let mut skipped = 0usize;
+        for (i, p) in raw.xyz.iter().enumerate() {
+            let v = local(p);
+            if !v.is_finite() {
+                skipped += 1;
+                continue;
+            }
+            points.push(v);
+            source_index.push(i as u32);
+            if let (Some(out), Some(given)) = (normals.as_mut(), raw.normals.as_ref()) {
+                out.push(unit(&given[i]));
+            }
+            if let (Some((r, c)), Some(g)) = (cells.as_mut(), raw.grid.as_ref()) {
+                r.push(g.row[i]);
+                c.push(g.col[i]);
+            }
         }
-        points.push(v);
-        source_index.push(i as u32);
-        if let (Some(out), Some(given)) = (normals.as_mut(), raw.normals.as_ref()) {
-            // An unusable normal becomes zero and is re-estimated downstream.
-            out.push(given[i].try_normalize().unwrap_or(Vec3::ZERO));
-        }
-        if let (Some((r, c)), Some(g)) = (cells.as_mut(), raw.grid.as_ref()) {
-            r.push(g.row[i]);
-            c.push(g.col[i]);
-        }
-    }
+        (points, source_index, normals, cells, skipped)
+    };
     let grid = match (raw.grid, cells) {
         (Some(RawGrid { rows, cols, .. }), Some((row, col))) => {
             // A valid point outside the grid leaves the grid unusable as a whole.

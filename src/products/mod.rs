@@ -33,7 +33,7 @@ pub use manifest::{Check, Entry, InputRecord, Manifest, ProductFile, ProductFile
 
 use crate::error::{Error, Result};
 use crate::gbuffer::GBuffer;
-use crate::io::atomic::write_atomic;
+use crate::io::atomic::write_atomic_with;
 use crate::merge::View;
 use crate::pipeline::PreparedView;
 use crate::projection::{Projection, Warp};
@@ -233,7 +233,7 @@ fn write_product(dir: &Path, key: &str, suffix: &str, bytes: &[u8]) -> Result<Pr
     let h = xxh3_128(bytes);
     let name = format!("{key}.{:016x}.{suffix}", (h >> 64) as u64);
     let path = dir.join(&name);
-    write_atomic(&path, |w| w.write_all(bytes))?;
+    write_atomic_with(&path, false, |w| w.write_all(bytes))?;
     Ok(ProductFile {
         name,
         size: bytes.len() as u64,

@@ -124,7 +124,9 @@ where
     let k = K_RADIUS.min(n);
     let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
-        let mut cand = [(0.0f32, 0u32); ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize];
+        // Candidates packed as (squared distance bits << 32) | index: squared distances are
+        // non-negative, so their bits order like the values and selection compares integers.
+        let mut cand = [0u64; ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize];
         for (o, r) in rad.iter_mut().enumerate() {
             let i = ci * CHUNK + o;
             let p = points[i];
@@ -133,19 +135,13 @@ where
             let mut half = GRID_R0;
             loop {
                 m = 0;
-                for dr in -half..=half {
-                    let rr = r0 + dr;
-                    if rr < 0 || rr >= rows {
-                        continue;
-                    }
-                    for dc in -half..=half {
-                        let cc = c0 + dc;
-                        if cc < 0 || cc >= cols {
-                            continue;
-                        }
-                        let j = at[(rr * cols + cc) as usize];
+                for rr in (r0 - half).max(0)..=(r0 + half).min(rows - 1) {
+                    let row = &at[(rr * cols) as usize..((rr + 1) * cols) as usize];
+                    let (ca, cb) = ((c0 - half).max(0) as usize, (c0 + half).min(cols - 1));
+                    for &j in row[ca..=cb as usize].iter() {
                         if j != u32::MAX {
-                            cand[m] = (points[j as usize].distance_squared(p), j);
+                            let d2 = points[j as usize].distance_squared(p).max(0.0);
+                            cand[m] = (u64::from(d2.to_bits()) << 32) | u64::from(j);
                             m += 1;
                         }
                     }
@@ -158,16 +154,23 @@ where
             let kk = k.min(m).max(1);
             let c = &mut cand[..m];
             if m > 0 {
-                c.select_nth_unstable_by(kk - 1, |a, b| a.0.total_cmp(&b.0));
+                select(c, kk - 1);
             }
-            let dk = c.get(kk - 1).map(|x| x.0.max(0.0).sqrt()).unwrap_or(0.0);
+            let dk = c
+                .get(kk - 1)
+                .map(|&x| f32::from_bits((x >> 32) as u32).sqrt())
+                .unwrap_or(0.0);
             *r = radius_from_dk(dk, k);
             if !nrm.is_empty() {
                 let kn = K_NORMAL.min(m);
-                if kn > 0 && kn < m {
-                    c.select_nth_unstable_by(kn - 1, |a, b| a.0.total_cmp(&b.0));
+                let c = &mut c[..kk.min(m)];
+                if kn > 0 && kn < c.len() {
+                    select(c, kn - 1);
                 }
-                nrm[o] = pca_normal(c[..kn].iter().map(|x| points[x.1 as usize]), toward(p));
+                nrm[o] = pca_normal(
+                    c[..kn].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
+                    toward(p),
+                );
             }
         }
     };
@@ -175,8 +178,64 @@ where
     (need_normals.then_some(normals), radii)
 }
 
+/// Reorders `v` so that `v[k]` is the value a sort would put there, with no larger value
+/// before it and no smaller after it (quickselect, insertion sort below 16 values).
+///
+/// Pivots are medians of three values at pseudo-random places: a grid window lists its
+/// cells row by row, so the first, middle and last cells are the two farthest corners and the
+/// centre, and the usual choice of those three gives a pivot near the largest value.
+fn select(v: &mut [u64], k: usize) {
+    let (mut lo, mut hi) = (0usize, v.len());
+    if k >= hi {
+        return;
+    }
+    let mut state = 0x2545_F491_4F6C_DD1Du64 ^ v.len() as u64;
+    let mut pick = |lo: usize, len: usize| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        lo + (((state >> 32) * len as u64) >> 32) as usize
+    };
+    while hi - lo > 16 {
+        let len = hi - lo;
+        let (a, b, c) = (v[pick(lo, len)], v[pick(lo, len)], v[pick(lo, len)]);
+        let pivot = a.max(b).min(a.min(b).max(c));
+        // Hoare partition: afterwards v[lo..=j] <= pivot <= v[j+1..hi].
+        let (mut i, mut j) = (lo, hi - 1);
+        loop {
+            while v[i] < pivot {
+                i += 1;
+            }
+            while v[j] > pivot {
+                j -= 1;
+            }
+            if i >= j {
+                break;
+            }
+            v.swap(i, j);
+            i += 1;
+            j -= 1;
+        }
+        if k <= j {
+            hi = j + 1;
+        } else {
+            lo = j + 1;
+        }
+    }
+    for i in lo + 1..hi {
+        let x = v[i];
+        let mut j = i;
+        while j > lo && v[j - 1] > x {
+            v[j] = v[j - 1];
+            j -= 1;
+        }
+        v[j] = x;
+    }
+}
+
 /// The PCA normal of a neighbourhood (eigenvector of the smallest covariance eigenvalue),
 /// oriented so that `n·toward ≥ 0`. Degenerate neighbourhoods return `toward`.
+#[inline(never)]
 pub fn pca_normal(nb: impl Iterator<Item = Vec3> + Clone, toward: Vec3) -> Vec3 {
     let (mut sum, mut cnt) = (DVec3::ZERO, 0usize);
     for q in nb.clone() {
@@ -214,6 +273,7 @@ pub fn pca_normal(nb: impl Iterator<Item = Vec3> + Clone, toward: Vec3) -> Vec3 
 
 /// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations: eigenvalues
 /// ascending and their unit eigenvectors.
+#[inline(never)]
 pub fn sym_eigen3(mut a: [[f64; 3]; 3]) -> ([f64; 3], [DVec3; 3]) {
     let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     for _ in 0..32 {
@@ -259,6 +319,35 @@ pub fn sym_eigen3(mut a: [[f64; 3]; 3]) -> ([f64; 3], [DVec3; 3]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn select_agrees_with_a_sort() {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        for n in 1..200usize {
+            for rep in 0..4 {
+                let mut v: Vec<u64> = (0..n)
+                    .map(|_| {
+                        state ^= state << 13;
+                        state ^= state >> 7;
+                        state ^= state << 17;
+                        // Few distinct values on some rounds: ties must work.
+                        if rep % 2 == 0 {
+                            state % 7
+                        } else {
+                            state
+                        }
+                    })
+                    .collect();
+                let mut sorted = v.clone();
+                sorted.sort_unstable();
+                let k = (state as usize) % n;
+                select(&mut v, k);
+                assert_eq!(v[k], sorted[k], "n {n} k {k}");
+                assert!(v[..k].iter().all(|&x| x <= v[k]));
+                assert!(v[k + 1..].iter().all(|&x| x >= v[k]));
+            }
+        }
+    }
 
     #[test]
     fn radius_formula_matches_hand_value() {

@@ -91,7 +91,7 @@
 use super::rng::Rng;
 use super::{AoMap, SsaoParams};
 use crate::gbuffer::{GBuffer, EMPTY};
-use crate::projection::Projection;
+use crate::projection::{fast_atan2, Projection};
 use glam::Vec3A;
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
@@ -454,36 +454,6 @@ fn exit(o: f32, inv: f32, size: f32) -> f32 {
     } else {
         f32::INFINITY
     }
-}
-
-/// `atan2(y, x)` in `(−π, π]` to within 3·10⁻⁷ rad (odd minimax-fitted polynomial of degree
-/// 13 on `[0, 1]` after octant reduction).
-#[inline]
-fn fast_atan2(y: f32, x: f32) -> f32 {
-    let (ax, ay) = (x.abs(), y.abs());
-    let (mn, mx) = if ax < ay { (ax, ay) } else { (ay, ax) };
-    if !(mx > 0.0) {
-        return if x < 0.0 || (x == 0.0 && x.is_sign_negative()) {
-            PI.copysign(y)
-        } else {
-            0.0f32.copysign(y)
-        };
-    }
-    let q = mn / mx;
-    let s = q * q;
-    let mut r = q
-        * (0.999_996_1
-            + s * (-0.333_173_7
-                + s * (0.198_078_34
-                    + s * (-0.132_334_12
-                        + s * (0.079_624_95 + s * (-0.033_605_33 + s * 0.006_812_162))))));
-    if ay > ax {
-        r = FRAC_PI_2 - r;
-    }
-    if x < 0.0 {
-        r = PI - r;
-    }
-    r.copysign(y)
 }
 
 /// One half-plane `ω = cos γ V + sin γ u`, `γ ∈ [0, π]`: the arc `[lo, hi]` where
