@@ -374,6 +374,9 @@ pub enum SceneArg {
     Room,
     /// An open courtyard with an arcade and a fountain.
     Courtyard,
+    /// A row of rooms joined by doorways, four stations to a room (a site whose scans each
+    /// overlap only their neighbours').
+    Suite,
 }
 
 /// Sensor models of `mvao synth`.
@@ -396,6 +399,9 @@ impl From<ModelArg> for SensorModel {
         }
     }
 }
+
+/// Stations to a room of `mvao synth --scene suite`.
+pub const STATIONS_PER_ROOM: usize = 4;
 
 /// Flags of `mvao synth`.
 #[derive(Debug, Args)]
@@ -447,6 +453,9 @@ impl SynthArgs {
             scene: match self.scene {
                 SceneArg::Room => SceneKind::Room,
                 SceneArg::Courtyard => SceneKind::Courtyard,
+                SceneArg::Suite => SceneKind::Suite {
+                    rooms: (self.stations as usize).div_ceil(STATIONS_PER_ROOM),
+                },
             },
             stations: self.stations as usize,
             model: self.projection.into(),

@@ -19,11 +19,12 @@ use crate::io::output::write_preview;
 use crate::io::results::{self, WriteOptions};
 use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
 use crate::pipeline::{
-    depth_range, may_share_surface, merge_params, prepare_view, robust_diagonal, same_file,
-    world_bounds, Config, Observer,
+    depth_range, merge_params, prepare_view, robust_diagonal, same_file, world_bounds, Config,
+    Observer, Pairs,
 };
 use crate::products::{self, InputRecord, Manifest, MergeMaps};
 use crate::report::ScanReport;
+use crate::scan::occupancy::Occupancy;
 use crate::scan::Scan;
 use crate::ssao::SsaoParams;
 use glam::DVec3;
@@ -31,6 +32,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// What the catalog pass learns of one scan.
@@ -81,7 +83,7 @@ impl Plan {
         let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
         let pts: usize = self.scans.iter().map(|s| s.points).sum();
         format!(
-            "plan: {} scans, {} points; pairs kept {}, skipped {} (bounds do not meet); \
+            "plan: {} scans, {} points; pairs kept {}, skipped {} (cannot share surface); \
              views ≈ {:.2} GiB in all, largest {:.3} GiB; budget {:.2} GiB; {} point-views to merge",
             self.scans.len(),
             pts,
@@ -197,6 +199,38 @@ fn data_hash(s: &Scan) -> String {
     format!("{:032x}", h.digest128())
 }
 
+/// A view's products being written (on another thread when prepare overlaps writing with
+/// computing).
+enum Saving<'s> {
+    Running(std::thread::ScopedJoinHandle<'s, Result<products::ProductFiles>>),
+    Done(Box<Result<products::ProductFiles>>),
+}
+
+/// A prepared view whose products are not committed yet.
+struct Pending<'s> {
+    saving: Saving<'s>,
+    key: String,
+    rec: InputRecord,
+    params: serde_json::Value,
+    sum: Summary,
+}
+
+/// Waits for a view's products, then writes its summary and, last, its manifest entry.
+fn commit(p: Pending<'_>, manifest: &mut Manifest, work_dir: &Path) -> Result<()> {
+    let files = match p.saving {
+        Saving::Running(h) => h.join().map_err(|_| {
+            Error::Param("writing a view's products failed (internal error)".into())
+        })??,
+        Saving::Done(r) => (*r)?,
+    };
+    let json = serde_json::to_vec(&p.sum)
+        .map_err(|e| Error::Param(format!("cannot encode a summary: {e}")))?;
+    crate::io::atomic::write_atomic(&summary_path(work_dir, &p.key), |w| {
+        std::io::Write::write_all(w, &json)
+    })?;
+    manifest.record(&p.key, std::slice::from_ref(&p.rec), &p.params, &files)
+}
+
 /// A cache of other scans' maps, bounded in bytes. The merge's order of loads is known in
 /// advance, so the map evicted is the one needed again the latest (Belady's rule): with a
 /// cyclic order, least-recently-used would miss every time once the maps do not all fit.
@@ -205,7 +239,7 @@ struct MapCache {
     /// Memory the process holds outside the cache (measured once per scan).
     outside: u64,
     used: u64,
-    maps: HashMap<usize, (MergeMaps, u64)>,
+    maps: HashMap<usize, (Arc<MergeMaps>, u64)>,
     /// Every load the merge will ask for, in order, and how far it has got.
     future: Vec<usize>,
     pos: usize,
@@ -238,7 +272,7 @@ impl MapCache {
         }
     }
 
-    fn get(&mut self, j: usize, dir: &Path, key: &str, pixels: u64) -> Result<&MergeMaps> {
+    fn get(&mut self, j: usize, dir: &Path, key: &str, pixels: u64) -> Result<Arc<MergeMaps>> {
         // Skip ahead to this request in the planned order.
         if let Some(p) = self.future[self.pos.min(self.future.len())..]
             .iter()
@@ -254,11 +288,11 @@ impl MapCache {
             self.loads += 1;
             self.bytes_read += bytes;
             self.used += bytes;
-            self.maps.insert(j, (m, bytes));
+            self.maps.insert(j, (Arc::new(m), bytes));
         }
         self.maps
             .get(&j)
-            .map(|e| &e.0)
+            .map(|e| e.0.clone())
             .ok_or_else(|| Error::Param("map cache lost an entry (internal error)".into()))
     }
 }
@@ -380,6 +414,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     obs.stage("catalog", cfg.scans.len() as u64);
     let mut cat: Vec<CatalogScan> = Vec::new();
     let mut samples: Vec<Scan> = Vec::new();
+    let mut occ: Vec<Occupancy> = Vec::new();
     let mut max_file_bytes = 0u64;
     for fi in 0..placer.len() {
         let pf = placer.open(fi)?;
@@ -394,6 +429,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 ));
             }
             let (lo, hi) = world_bounds(s);
+            occ.push(Occupancy::of(s, (hi - lo).length()));
             // The same subsample `robust_diagonal` would take, so the default radius equals
             // the in-memory computation's.
             let step = s.len().div_ceil(20_000).max(1);
@@ -460,8 +496,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         .map(|c| (DVec3::from(c.bounds[0]), DVec3::from(c.bounds[1])))
         .collect();
     // Before the radii are known only the SSAO reach counts.
-    let pair_meets =
-        |i: usize, j: usize, max_rad: f64| may_share_surface(&b[i], &b[j], tmax, max_rad);
+    let plan_pairs = Pairs::new(b.clone(), &occ, tmax, 0.0);
+    let pair_meets = |i: usize, j: usize, max_rad: f64| plan_pairs.meets(i, j, max_rad);
     let mut kept = 0usize;
     let mut point_views = 0u64;
     for (i, c) in cat.iter().enumerate() {
@@ -546,75 +582,91 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 || (!cfg.prepare_only && (0..n).any(|j| selected(&cat[j]) && pair_meets(i, j, 0.0)))
         })
         .collect();
-    for fi in 0..placer.len() {
-        let stale: Vec<usize> = (0..n)
-            .filter(|&i| cat[i].file == fi && need[i])
-            .filter(|&i| {
-                !(manifest.is_fresh(&cat[i].key, &[&cfg.scans[fi]], &params(&cat[i]))
-                    && summary_path(&work_dir, &cat[i].key).is_file())
-            })
-            .collect();
-        out.prepared.1 += (0..n)
-            .filter(|&i| cat[i].file == fi && need[i] && !stale.contains(&i))
-            .count();
-        if stale.is_empty() {
-            obs.advance(
-                cat.iter()
-                    .filter(|c| c.file == fi)
-                    .map(|c| c.points as u64)
-                    .sum(),
-            );
-            continue;
-        }
-        // Fingerprint the input before reading it, so a change during the run is caught.
-        let rec = InputRecord::capture(&cfg.scans[fi])?;
-        let pf = placer.open(fi)?;
-        prep_bytes += rec.size;
-        for &i in &stale {
-            let s = &pf.scans[cat[i].index];
-            if data_hash(s) != cat[i].data_hash {
-                return Err(Error::Param(format!(
-                    "{}: changed while mvao was running; run again",
-                    cfg.scans[fi].display()
-                )));
+    // A view's products are written while the next view is computed, when two views and an
+    // input file fit in the budget; the manifest entry, the commit point, still follows its
+    // products and summary.
+    let overlap = 4 * out.plan.largest_view_bytes + 5 * max_file_bytes + (64 << 20) <= budget;
+    std::thread::scope(|sc| -> Result<()> {
+        let mut pending: Option<Pending<'_>> = None;
+        for fi in 0..placer.len() {
+            let stale: Vec<usize> = (0..n)
+                .filter(|&i| cat[i].file == fi && need[i])
+                .filter(|&i| {
+                    !(manifest.is_fresh(&cat[i].key, &[&cfg.scans[fi]], &params(&cat[i]))
+                        && summary_path(&work_dir, &cat[i].key).is_file())
+                })
+                .collect();
+            out.prepared.1 += (0..n)
+                .filter(|&i| cat[i].file == fi && need[i] && !stale.contains(&i))
+                .count();
+            if stale.is_empty() {
+                obs.advance(
+                    cat.iter()
+                        .filter(|c| c.file == fi)
+                        .map(|c| c.points as u64)
+                        .sum(),
+                );
+                continue;
             }
-            let v = prepare_view(s, prm.projection, &sp)?;
-            let files = products::save_view(&work_dir, &cat[i].key, &v)?;
-            let (dmin, dmax) = depth_range(&v.depth);
-            let (_, no_sample) = v.point_ssao();
-            let proj = &v.sensor.projection;
-            let sum = Summary {
-                points: s.len(),
-                max_radius: v.radii.iter().copied().fold(0.0, f32::max),
-                depth_min: dmin,
-                depth_max: dmax,
-                ortho: proj.sensor_model() == crate::projection::SensorModel::Ortho,
-                no_sample,
-                filled: v.gbuf.filled(),
-                sensor_model: proj.sensor_model().to_string(),
-                map_size: [proj.width, proj.height],
-                native_grid: v.sensor.grid_pixels.is_some(),
-                fit_rms_px: v.sensor.fit_rms_px,
-                reason: v.sensor.reason.clone(),
-                normals: v.normals_note.clone(),
-                times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
-            };
-            let json = serde_json::to_vec(&sum)
-                .map_err(|e| Error::Param(format!("cannot encode a summary: {e}")))?;
-            crate::io::atomic::write_atomic(&summary_path(&work_dir, &cat[i].key), |w| {
-                std::io::Write::write_all(w, &json)
-            })?;
-            // The manifest entry is the commit point: written last.
-            manifest.record(
-                &cat[i].key,
-                std::slice::from_ref(&rec),
-                &params(&cat[i]),
-                &files,
-            )?;
-            out.prepared.0 += 1;
-            obs.advance(s.len() as u64);
+            // Fingerprint the input before reading it, so a change during the run is caught.
+            let rec = InputRecord::capture(&cfg.scans[fi])?;
+            let pf = placer.open(fi)?;
+            prep_bytes += rec.size;
+            for &i in &stale {
+                let s = &pf.scans[cat[i].index];
+                if data_hash(s) != cat[i].data_hash {
+                    return Err(Error::Param(format!(
+                        "{}: changed while mvao was running; run again",
+                        cfg.scans[fi].display()
+                    )));
+                }
+                let v = prepare_view(s, prm.projection, &sp)?;
+                let (dmin, dmax) = depth_range(&v.depth);
+                let (_, no_sample) = v.point_ssao();
+                let proj = &v.sensor.projection;
+                let sum = Summary {
+                    points: s.len(),
+                    max_radius: v.radii.iter().copied().fold(0.0, f32::max),
+                    depth_min: dmin,
+                    depth_max: dmax,
+                    ortho: proj.sensor_model() == crate::projection::SensorModel::Ortho,
+                    no_sample,
+                    filled: v.gbuf.filled(),
+                    sensor_model: proj.sensor_model().to_string(),
+                    map_size: [proj.width, proj.height],
+                    native_grid: v.sensor.grid_pixels.is_some(),
+                    fit_rms_px: v.sensor.fit_rms_px,
+                    reason: v.sensor.reason.clone(),
+                    normals: v.normals_note.clone(),
+                    times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
+                };
+                // The previous view's products are committed before this one's are written.
+                if let Some(p) = pending.take() {
+                    commit(p, &mut manifest, &work_dir)?;
+                }
+                let key = cat[i].key.clone();
+                let wd = work_dir.clone();
+                let saving = if overlap {
+                    Saving::Running(sc.spawn(move || products::save_view(&wd, &key, &v)))
+                } else {
+                    Saving::Done(Box::new(products::save_view(&wd, &key, &v)))
+                };
+                pending = Some(Pending {
+                    saving,
+                    key: cat[i].key.clone(),
+                    rec: rec.clone(),
+                    params: params(&cat[i]),
+                    sum,
+                });
+                out.prepared.0 += 1;
+                obs.advance(s.len() as u64);
+            }
         }
-    }
+        if let Some(p) = pending.take() {
+            commit(p, &mut manifest, &work_dir)?;
+        }
+        Ok(())
+    })?;
     let _ = manifest.save();
     obs.done("prepare", t0.elapsed().as_secs_f64());
     out.times
@@ -660,7 +712,9 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         .iter()
         .map(|s| s.as_ref().map_or(0.0, |s| s.max_radius as f64))
         .collect();
-    let partner = |i: usize, j: usize| j == i || pair_meets(i, j, max_rad[i].max(max_rad[j]));
+    let pairs = Pairs::new(b, &occ, tmax, max_rad.iter().copied().fold(0.0, f64::max));
+    drop(occ);
+    let partner = |i: usize, j: usize| pairs.meets(i, j, max_rad[i].max(max_rad[j]));
 
     // Pass 3: merge, one input file at a time.
     std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
@@ -689,9 +743,16 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut future = Vec::new();
     for fi in 0..placer.len() {
         for i in (0..n).filter(|&i| cat[i].file == fi && selected(&cat[i])) {
+            // Its own maps first, then its partners' (in the order the merge visits them).
+            future.push(i);
             future.extend((0..n).filter(|&j| j != i && partner(i, j)));
         }
     }
+    let pixels_of = |j: usize| {
+        sums[j].as_ref().map_or(cat[j].map_pixels, |s| {
+            (s.map_size[0] * s.map_size[1]) as u64
+        })
+    };
     let mut cache = MapCache {
         budget,
         outside: 0,
@@ -714,40 +775,45 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         let mut aos: Vec<Vec<f32>> = vec![Vec::new(); pf.scans.len()];
         for &i in &mine {
             let s = &pf.scans[cat[i].index];
-            let own = products::load_view(&work_dir, &cat[i].key)?;
-            merge_read += view_bytes((own.gbuf.width * own.gbuf.height) as u64, s.len() as u64);
-            let (own_ssao, no_sample) = own.point_ssao();
+            // The own maps come through the cache: they are other scans' partner maps too.
+            let own_pts = products::load_points(&work_dir, &cat[i].key)?;
+            merge_read += view_bytes(0, s.len() as u64);
             cache.measure();
+            let own = cache.get(i, &work_dir, &cat[i].key, pixels_of(i))?;
+            let mut no_sample = 0u64;
+            let own_ssao: Vec<f32> = own_pts
+                .pixel
+                .iter()
+                .map(|&px| {
+                    if px == EMPTY {
+                        no_sample += 1;
+                        1.0
+                    } else {
+                        no_sample += u64::from(own.no_sample[px as usize]);
+                        own.ao[px as usize]
+                    }
+                })
+                .collect();
             let (ao, st) = if prm.ssao_only {
                 (own_ssao.clone(), MergeStats::default())
             } else {
                 let t = Target {
                     index: i,
                     points: &s.points,
-                    radii: &own.radii,
-                    own_pixel: &own.pixel,
+                    radii: &own_pts.radii,
+                    own_pixel: &own_pts.pixel,
                     pose: s.pose,
-                    proj: &own.sensor.projection,
+                    proj: &own.projection,
                 };
                 let mut acc = Accum::new(s.len());
                 for j in (0..n).filter(|&j| partner(i, j)) {
                     let pose_j = if j == i { s.pose } else { cat[j].pose };
-                    if j == i {
-                        let v = merge::View {
-                            proj: &own.sensor.projection,
-                            gbuf: &own.gbuf,
-                            ao: &own.ssao.ao,
-                            border: &own.border,
-                            pose: pose_j,
-                        };
-                        merge::accumulate(&mut acc, &t, j, &v, &mp, &|_| {});
+                    let m = if j == i {
+                        own.clone()
                     } else {
-                        let pixels = sums[j].as_ref().map_or(cat[j].map_pixels, |s| {
-                            (s.map_size[0] * s.map_size[1]) as u64
-                        });
-                        let m = cache.get(j, &work_dir, &cat[j].key, pixels)?;
-                        merge::accumulate(&mut acc, &t, j, &m.view(pose_j), &mp, &|_| {});
-                    }
+                        cache.get(j, &work_dir, &cat[j].key, pixels_of(j))?
+                    };
+                    merge::accumulate(&mut acc, &t, j, &m.view(pose_j), &mp, &|_| {});
                 }
                 acc.finish(&own_ssao)
             };

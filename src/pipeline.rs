@@ -10,6 +10,7 @@ use crate::io::source::Format;
 use crate::merge::{self, MergeParams, MergeStats, View};
 use crate::projection::Projection;
 use crate::report::{Parameters, Report, Totals};
+use crate::scan::occupancy::{diagonal, Occupancy, Reach};
 use crate::scan::{normals, Scan};
 use crate::sensor::{self, ProjectionChoice, SensorSetup};
 use crate::ssao::{self, AoMap, Estimator, SsaoParams};
@@ -416,6 +417,17 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         .iter()
         .map(|v| v.radii.iter().copied().fold(0.0f32, f32::max) as f64)
         .collect();
+    let occ: Vec<Occupancy> = scans
+        .iter()
+        .zip(&bounds)
+        .map(|(s, b)| Occupancy::of(s, diagonal(b)))
+        .collect();
+    let pairs = Pairs::new(
+        bounds,
+        &occ,
+        tmax,
+        max_rad.iter().copied().fold(0.0, f64::max),
+    );
     let mv = merge_views(&views, scans);
     obs.stage("merge", if prm.ssao_only { 0 } else { total });
     let t0 = Instant::now();
@@ -425,10 +437,8 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         let (ao, st) = if prm.ssao_only {
             (own.clone(), MergeStats::default())
         } else {
-            let skip: Vec<bool> = bounds
-                .iter()
-                .zip(&max_rad)
-                .map(|(b, &rj)| !may_share_surface(&bounds[i], b, tmax, max_rad[i].max(rj)))
+            let skip: Vec<bool> = (0..scans.len())
+                .map(|j| !pairs.meets(i, j, max_rad[i].max(max_rad[j])))
                 .collect();
             merge::merge_scan(
                 i,
@@ -481,36 +491,23 @@ pub fn merge_views<'a>(views: &'a [PreparedView], scans: &[Scan]) -> Vec<View<'a
         .collect()
 }
 
-/// World-space bounding box of a scan.
+/// World-space bounding box of a scan: of its points moved by the pose (not of its local box
+/// moved, which a rotated pose would inflate).
 pub fn world_bounds(s: &Scan) -> (DVec3, DVec3) {
+    let pose = s.pose;
+    let empty = || (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     let (lo, hi) = s
         .points
         .par_iter()
-        .fold(
-            || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-        )
-        .reduce(
-            || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-            |a, b| (a.0.min(b.0), a.1.max(b.1)),
-        );
-    if !lo.is_finite() {
+        .fold(empty, |(lo, hi), p| {
+            let w = pose.transform_point3(p.as_dvec3());
+            (lo.min(w), hi.max(w))
+        })
+        .reduce(empty, |a, b| (a.0.min(b.0), a.1.max(b.1)));
+    if !(lo.is_finite() && hi.is_finite()) {
         return (DVec3::ZERO, DVec3::ZERO);
     }
-    let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
-    let mut wlo = DVec3::splat(f64::INFINITY);
-    let mut whi = DVec3::splat(f64::NEG_INFINITY);
-    for k in 0..8 {
-        let c = DVec3::new(
-            if k & 1 == 0 { lo.x } else { hi.x },
-            if k & 2 == 0 { lo.y } else { hi.y },
-            if k & 4 == 0 { lo.z } else { hi.z },
-        );
-        let w = s.pose.transform_point3(c);
-        wlo = wlo.min(w);
-        whi = whi.max(w);
-    }
-    (wlo, whi)
+    (lo, hi)
 }
 
 /// True when two scans with world bounds `a` and `b` may see common surface: eq. 7 accepts
@@ -519,8 +516,46 @@ pub fn world_bounds(s: &Scan) -> (DVec3, DVec3) {
 /// rounding) share nothing.
 pub fn may_share_surface(a: &(DVec3, DVec3), b: &(DVec3, DVec3), tmax: f32, max_rad: f64) -> bool {
     let scale = (a.1 - a.0).length() + (b.1 - b.0).length();
-    let margin = (2.0 * tmax as f64).max(2.0 * max_rad) + 1e-6 * scale + 1e-9;
-    overlaps(a, b, margin)
+    overlaps(a, b, pair_margin(tmax, max_rad, scale))
+}
+
+/// How close two scans' points must come to pair them (see [`may_share_surface`]); `scale`
+/// sizes the allowance for rounding.
+fn pair_margin(tmax: f32, max_rad: f64, scale: f64) -> f64 {
+    (2.0 * tmax as f64).max(2.0 * max_rad) + 1e-6 * scale + 1e-9
+}
+
+/// Which pairs of scans may see common surface: their bounds must meet
+/// ([`may_share_surface`]) and so must their occupied cells
+/// ([`crate::scan::occupancy`]), which separates scans that only look at each other's
+/// surfaces through an opening.
+#[derive(Debug, Clone)]
+pub struct Pairs {
+    bounds: Vec<(DVec3, DVec3)>,
+    reach: Reach,
+    tmax: f32,
+}
+
+impl Pairs {
+    /// The pair tests of scans with these world bounds and occupancies, for radii up to
+    /// `max_rad` (0 when not known yet).
+    pub fn new(bounds: Vec<(DVec3, DVec3)>, occ: &[Occupancy], tmax: f32, max_rad: f64) -> Pairs {
+        let scale = 2.0 * bounds.iter().map(diagonal).fold(0.0, f64::max);
+        let reach = Reach::new(occ, pair_margin(tmax, max_rad, scale));
+        Pairs {
+            bounds,
+            reach,
+            tmax,
+        }
+    }
+
+    /// Whether scan `i`'s points may correspond to scan `j`'s (always for `i == j`), with
+    /// `max_rad` the larger radius of both (at most the one given to [`Pairs::new`]).
+    pub fn meets(&self, i: usize, j: usize, max_rad: f64) -> bool {
+        i == j
+            || (may_share_surface(&self.bounds[i], &self.bounds[j], self.tmax, max_rad)
+                && self.reach.meets(i, j))
+    }
 }
 
 /// Smallest and largest finite depth (∞, 0 when there is none).

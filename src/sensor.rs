@@ -267,8 +267,24 @@ fn add_warps(fit: &mut Fit, scan: &Scan, grid: &crate::scan::Grid) {
             obs.push((pr.x, pr.y, gx as f32 + 0.5, gy as f32 + 0.5));
         }
     }
+    let err = |wx: Option<&Warp>, wy: Option<&Warp>| -> f64 {
+        let sq: f64 = obs
+            .iter()
+            .map(|&(x, y, gx, gy)| {
+                let x = wx.map_or(x, |w| w.apply(x));
+                let y = wy.map_or(y, |w| w.apply(y));
+                ((x - gx) as f64).powi(2) + ((y - gy) as f64).powi(2)
+            })
+            .sum();
+        rms_of(sq, obs.len())
+    };
+    let base = err(None, None);
+    // An evenly stepped grid fits linearly: no warp to look for.
+    if base <= 0.3 {
+        return;
+    }
     let knots = |v: &mut Vec<(usize, f32)>, n: usize| -> Option<Warp> {
-        v.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        v.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
         let mut known: Vec<(usize, f64)> = Vec::new();
         let mut s = 0usize;
         while s < v.len() {
@@ -296,18 +312,6 @@ fn add_warps(fit: &mut Fit, scan: &Scan, grid: &crate::scan::Grid) {
     let [mut px, mut py] = per;
     let wx = knots(&mut px, w);
     let wy = knots(&mut py, h);
-    let err = |wx: Option<&Warp>, wy: Option<&Warp>| -> f64 {
-        let sq: f64 = obs
-            .iter()
-            .map(|&(x, y, gx, gy)| {
-                let x = wx.map_or(x, |w| w.apply(x));
-                let y = wy.map_or(y, |w| w.apply(y));
-                ((x - gx) as f64).powi(2) + ((y - gy) as f64).powi(2)
-            })
-            .sum();
-        rms_of(sq, obs.len())
-    };
-    let base = err(None, None);
     let warped = err(wx.as_ref(), wy.as_ref());
     // Keep warps only where they clearly help (an evenly stepped grid fits linearly).
     if warped < 0.8 * base && base > 0.3 {

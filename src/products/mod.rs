@@ -130,13 +130,15 @@ pub fn save_view_with(
     };
     check_meta_roundtrip(key, &meta)?;
     let g = &view.gbuf;
-    let maps = exr_io::encode_maps(
-        g,
-        &view.ssao.ao,
-        &view.ssao.no_sample,
-        &view.border,
-        opt.compression,
-    )
+    let maps = {
+        exr_io::encode_maps(
+            g,
+            &view.ssao.ao,
+            &view.ssao.no_sample,
+            &view.border,
+            opt.compression,
+        )
+    }
     .map_err(|m| Error::scan(key, m))?;
     let maps = write_product(dir, key, MAPS_SUFFIX, &maps)?;
     let pts = points::encode(
@@ -233,7 +235,7 @@ fn write_product(dir: &Path, key: &str, suffix: &str, bytes: &[u8]) -> Result<Pr
     let h = xxh3_128(bytes);
     let name = format!("{key}.{:016x}.{suffix}", (h >> 64) as u64);
     let path = dir.join(&name);
-    write_atomic_with(&path, false, |w| w.write_all(bytes))?;
+    { write_atomic_with(&path, false, |w| w.write_all(bytes)) }?;
     Ok(ProductFile {
         name,
         size: bytes.len() as u64,
@@ -314,37 +316,11 @@ pub fn load_view(dir: &Path, key: &str) -> Result<PreparedView> {
     let (ppath, pbytes) = read_product(dir, &e.products.points)?;
     let pts = points::decode(&pbytes, &ppath)?;
     drop(pbytes);
-    if pts.radii.len() as u64 != meta.points || pts.grid_pixels.is_some() != meta.native_grid {
-        return Err(Error::format(
-            &ppath,
-            format!(
-                "{} points{}, the entry says {}{}",
-                pts.radii.len(),
-                if pts.grid_pixels.is_some() {
-                    " with grid"
-                } else {
-                    ""
-                },
-                meta.points,
-                if meta.native_grid { " with grid" } else { "" }
-            ),
-        ));
-    }
+    check_points(&ppath, &pts, &meta)?;
     let (mpath, mbytes) = read_product(dir, &e.products.maps)?;
     let maps = exr_io::decode_maps(&mbytes, &mpath, Some(meta.points), true)?;
     drop(mbytes);
     check_map_size(&mpath, &maps.gbuf, &meta.projection)?;
-    let n = maps.gbuf.width * maps.gbuf.height;
-    let oob = |v: &[u32]| {
-        v.iter()
-            .any(|&p| p != crate::gbuffer::EMPTY && p as usize >= n)
-    };
-    if oob(&pts.pixel) || pts.grid_pixels.as_deref().is_some_and(oob) {
-        return Err(Error::format(
-            &ppath,
-            "a point's pixel lies outside the map",
-        ));
-    }
     Ok(PreparedView {
         sensor: SensorSetup {
             projection: meta.projection,
@@ -388,6 +364,8 @@ pub struct MergeMaps {
     pub gbuf: GBuffer,
     /// Its per-pixel SSAO.
     pub ao: Vec<f32>,
+    /// Where a valid pixel had no SSAO sample.
+    pub no_sample: Vec<bool>,
     /// Its per-pixel border distance.
     pub border: Vec<f32>,
     /// Number of points of the scan.
@@ -413,16 +391,59 @@ pub fn load_maps_for_merge(dir: &Path, key: &str) -> Result<MergeMaps> {
     let e = current_entry(dir, key)?;
     let meta = e.products.view;
     let (mpath, mbytes) = read_product(dir, &e.products.maps)?;
-    let maps = exr_io::decode_maps(&mbytes, &mpath, Some(meta.points), false)?;
+    let maps = exr_io::decode_maps(&mbytes, &mpath, Some(meta.points), true)?;
     drop(mbytes);
     check_map_size(&mpath, &maps.gbuf, &meta.projection)?;
+    let n = maps.gbuf.width * maps.gbuf.height;
     Ok(MergeMaps {
         projection: meta.projection,
         gbuf: maps.gbuf,
         ao: maps.ao,
+        no_sample: maps.no_sample.unwrap_or_else(|| vec![false; n]),
         border: maps.border,
         points: meta.points,
     })
+}
+
+/// Loads `key`'s per-point products (radius, pixel, depth, grid pixel), checked against its
+/// entry and against the map size.
+pub fn load_points(dir: &Path, key: &str) -> Result<points::Points> {
+    let e = current_entry(dir, key)?;
+    let meta = e.products.view;
+    let (ppath, pbytes) = read_product(dir, &e.products.points)?;
+    let pts = points::decode(&pbytes, &ppath)?;
+    drop(pbytes);
+    check_points(&ppath, &pts, &meta)?;
+    Ok(pts)
+}
+
+/// The per-point products agree with the entry: count, grid, pixels inside the map.
+fn check_points(path: &Path, pts: &points::Points, meta: &ViewMeta) -> Result<()> {
+    if pts.radii.len() as u64 != meta.points || pts.grid_pixels.is_some() != meta.native_grid {
+        return Err(Error::format(
+            path,
+            format!(
+                "{} points{}, the entry says {}{}",
+                pts.radii.len(),
+                if pts.grid_pixels.is_some() {
+                    " with grid"
+                } else {
+                    ""
+                },
+                meta.points,
+                if meta.native_grid { " with grid" } else { "" }
+            ),
+        ));
+    }
+    let n = meta.projection.width * meta.projection.height;
+    let oob = |v: &[u32]| {
+        v.iter()
+            .any(|&p| p != crate::gbuffer::EMPTY && p as usize >= n)
+    };
+    if oob(&pts.pixel) || pts.grid_pixels.as_deref().is_some_and(oob) {
+        return Err(Error::format(path, "a point's pixel lies outside the map"));
+    }
+    Ok(())
 }
 
 /// A stage name as the `&'static str` [`PreparedView::times`] holds: the pipeline's names

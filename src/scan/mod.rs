@@ -3,6 +3,7 @@
 //! No files, no images.
 
 pub mod normals;
+pub mod occupancy;
 
 use glam::{DMat4, Vec3};
 use std::path::PathBuf;

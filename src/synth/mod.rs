@@ -37,6 +37,11 @@ pub enum SceneKind {
     Room,
     /// [`Scene::courtyard`]: an open courtyard with an arcade and a fountain.
     Courtyard,
+    /// [`Scene::suite`]: `rooms` rooms in a row joined by doorways.
+    Suite {
+        /// Number of rooms.
+        rooms: usize,
+    },
 }
 
 impl SceneKind {
@@ -45,6 +50,7 @@ impl SceneKind {
         match self {
             SceneKind::Room => Scene::room(),
             SceneKind::Courtyard => Scene::courtyard(),
+            SceneKind::Suite { rooms } => Scene::suite(rooms),
         }
     }
 }
@@ -54,6 +60,7 @@ impl std::fmt::Display for SceneKind {
         f.write_str(match self {
             SceneKind::Room => "room",
             SceneKind::Courtyard => "courtyard",
+            SceneKind::Suite { .. } => "suite",
         })
     }
 }
@@ -64,9 +71,13 @@ impl std::str::FromStr for SceneKind {
         match s.to_ascii_lowercase().as_str() {
             "room" => Ok(SceneKind::Room),
             "courtyard" => Ok(SceneKind::Courtyard),
-            _ => Err(Error::Param(format!(
-                "unknown synthetic scene '{s}' (expected room or courtyard)"
-            ))),
+            "suite" => Ok(SceneKind::Suite { rooms: 6 }),
+            t => match t.strip_prefix("suite:").map(str::parse::<usize>) {
+                Some(Ok(rooms)) if (1..=1000).contains(&rooms) => Ok(SceneKind::Suite { rooms }),
+                _ => Err(Error::Param(format!(
+                    "unknown synthetic scene '{s}' (expected room, courtyard, suite or suite:ROOMS)"
+                ))),
+            },
         }
     }
 }
@@ -174,6 +185,20 @@ pub fn station_layout(
     width: usize,
     height: usize,
 ) -> Vec<Station> {
+    if let SceneKind::Suite { rooms } = kind {
+        // Each room gets a room's layout of its share of the stations, moved to it.
+        let rooms = rooms.max(1);
+        let per = count.div_ceil(rooms).max(1);
+        return (0..count)
+            .map(|k| {
+                let (r, l) = ((k / per).min(rooms - 1), k % per);
+                let n = per.min(count - (k / per) * per).max(l + 1);
+                let mut s = station_layout(SceneKind::Room, model, n, width, height)[l];
+                s.position.x += 9.0 * r as f64;
+                s
+            })
+            .collect();
+    }
     let (centre, radius, z_eq, ring, z_cam, target, z_ortho, area) = match kind {
         SceneKind::Room => (
             DVec2::new(0.3, 0.0),
@@ -185,7 +210,7 @@ pub fn station_layout(
             2.95,
             (DVec2::new(-4.0, -3.0), DVec2::new(4.0, 3.0)),
         ),
-        SceneKind::Courtyard => (
+        SceneKind::Courtyard | SceneKind::Suite { .. } => (
             DVec2::ZERO,
             6.0,
             1.5,

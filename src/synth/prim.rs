@@ -75,6 +75,30 @@ pub enum Prim {
 }
 
 impl Prim {
+    /// The same primitive moved by `off`.
+    pub fn translated(&self, off: DVec3) -> Prim {
+        let mut p = *self;
+        match &mut p {
+            Prim::Quad { center, .. } => *center += off,
+            Prim::Spandrel {
+                center,
+                hole_center,
+                ..
+            } => {
+                *center += off;
+                *hole_center += off;
+            }
+            Prim::Box { min, max } => {
+                *min += off;
+                *max += off;
+            }
+            Prim::Cylinder { base, .. } => *base += off,
+            Prim::Sphere { center, .. } => *center += off,
+            Prim::Vault { start, .. } => *start += off,
+        }
+        p
+    }
+
     /// A [`Prim::Quad`] with edge vectors `u`, `v` whose front normal points along `facing`
     /// (the sign of `v` is flipped when needed).
     pub fn quad_facing(center: DVec3, u: DVec3, v: DVec3, facing: DVec3) -> Prim {

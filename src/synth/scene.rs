@@ -144,6 +144,54 @@ impl Scene {
         s
     }
 
+    /// A suite of `rooms` copies of [`Scene::room`] in a row along +x, 9 m apart (walls 1 m
+    /// thick between them), each joined to the next by a doorway 1 m wide and 2.1 m high
+    /// with a short passage through the wall. Doorways alternate between y ∈ [1.2, 2.2] and
+    /// y ∈ [-2.1, -1.1], so no line of sight runs through two of them: like the rooms of a
+    /// palace or a castle, each room is seen from its own stations and, through the
+    /// doorways, a little from its neighbours'. Room `k` spans x ∈ [9k − 4, 9k + 4].
+    pub fn suite(rooms: usize) -> Scene {
+        let (x0, x1, h, hd) = (-4.0, 4.0, 3.0, 2.1);
+        let door = |k: usize| if k % 2 == 0 { (1.2, 2.2) } else { (-2.1, -1.1) };
+        let base = Scene::room();
+        let mut s = Scene::default();
+        for k in 0..rooms.max(1) {
+            let off = DVec3::new(9.0 * k as f64, 0.0, 0.0);
+            // Every primitive of the room but its west and east walls, which get doorways.
+            for p in &base.prims {
+                let end_wall = matches!(p, Prim::Quad { center, .. }
+                    if (center.x - x0).abs() < 1e-9 || (center.x - x1).abs() < 1e-9);
+                if !end_wall {
+                    s.prims.push(p.translated(off));
+                }
+            }
+            let west = (k > 0).then(|| door(k - 1));
+            let east = (k + 1 < rooms).then(|| door(k));
+            for (x, facing, d) in [(x0, DVec3::X, west), (x1, -DVec3::X, east)] {
+                let x = x + off.x;
+                match d {
+                    None => s.wall_x(x, -3.0, 3.0, 0.0, h, facing),
+                    Some((d0, d1)) => {
+                        s.wall_x(x, -3.0, d0, 0.0, h, facing);
+                        s.wall_x(x, d1, 3.0, 0.0, h, facing);
+                        s.wall_x(x, d0, d1, hd, h, facing);
+                    }
+                }
+            }
+            // The passage through the 1 m wall to the next room.
+            if let Some((d0, d1)) = east {
+                let (xa, xb) = (off.x + x1, off.x + x1 + 1.0);
+                let (xc, yc) = ((xa + xb) / 2.0, (d0 + d1) / 2.0);
+                let (ex, ey, ez) = (DVec3::X, DVec3::Y, DVec3::Z);
+                s.quad(DVec3::new(xc, d0, hd / 2.0), ex, ez * hd, ey);
+                s.quad(DVec3::new(xc, d1, hd / 2.0), ex, ez * hd, -ey);
+                s.quad(DVec3::new(xc, yc, hd), ex, ey * (d1 - d0), -ez);
+                s.quad(DVec3::new(xc, yc, 0.0), ex, ey * (d1 - d0), ez);
+            }
+        }
+        s
+    }
+
     /// An open courtyard (no ceiling): ground 30 × 30 m (x, y ∈ [-15, 15], z = 0) with a
     /// 20 × 20 m court (x, y ∈ [-10, 10]) enclosed by buildings (solid boxes):
     /// - west x ∈ [-15, -10], 9 m high; east x ∈ [10, 15], 7 m; south y ∈ [-15, -10], 8 m;
@@ -231,6 +279,12 @@ impl Scene {
     fn wall_y(&mut self, y: f64, xa: f64, xb: f64, za: f64, zb: f64, facing: DVec3) {
         let c = DVec3::new((xa + xb) / 2.0, y, (za + zb) / 2.0);
         self.quad(c, DVec3::X * (xb - xa), DVec3::Z * (zb - za), facing);
+    }
+
+    /// Vertical rectangle in the plane `x`, spanning `[ya, yb] × [za, zb]`.
+    fn wall_x(&mut self, x: f64, ya: f64, yb: f64, za: f64, zb: f64, facing: DVec3) {
+        let c = DVec3::new(x, (ya + yb) / 2.0, (za + zb) / 2.0);
+        self.quad(c, DVec3::Y * (yb - ya), DVec3::Z * (zb - za), facing);
     }
 
     fn cuboid(&mut self, min: [f64; 3], max: [f64; 3]) {

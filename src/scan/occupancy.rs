@@ -1,0 +1,211 @@
+//! Which cells of a world grid a scan's points occupy, to tell pairs of scans that cannot share
+//! surface from those that may. Bounding boxes alone keep too much: two rooms joined by a
+//! doorway have boxes that meet wherever either scan looked through it.
+//!
+//! Cells are cubes of side `2^level` metres in world coordinates (f64, so georeferenced scans
+//! work), indexed by `floor(w / 2^level)`. Two points closer than the cell side lie in the same
+//! or in neighbouring cells, so "no cell of one scan touches a cell of the other" proves that no
+//! two points are that close, and the test never drops a pair that could meet.
+
+use super::Scan;
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// Cells along the diagonal of a scan's box at its own level: fine enough to separate rooms,
+/// coarse enough to stay a few thousand cells on a surface.
+const CELLS_PER_DIAGONAL: f64 = 128.0;
+
+/// The occupied cells of one scan.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Occupancy {
+    /// Cell side `2^level` metres.
+    pub level: i32,
+    /// Occupied cells, sorted, each once.
+    pub cells: Vec<[i64; 3]>,
+}
+
+impl Occupancy {
+    /// The cells `s`'s points occupy in world coordinates; `diag` is the diagonal of its world
+    /// box (sets the level).
+    pub fn of(s: &Scan, diag: f64) -> Occupancy {
+        let level = if diag > 0.0 && diag.is_finite() {
+            (diag / CELLS_PER_DIAGONAL)
+                .log2()
+                .floor()
+                .clamp(-40.0, 40.0) as i32
+        } else {
+            0
+        };
+        let inv = (-level as f64).exp2();
+        let pose = s.pose;
+        let cell = |p: &glam::Vec3| {
+            let w = pose.transform_point3(p.as_dvec3()) * inv;
+            [w.x.floor() as i64, w.y.floor() as i64, w.z.floor() as i64]
+        };
+        // Neighbouring points mostly share a cell: dropping repeats within a chunk keeps the
+        // sort small.
+        let mut cells: Vec<[i64; 3]> = s
+            .points
+            .par_chunks(4096)
+            .flat_map_iter(|c| {
+                let mut out: Vec<[i64; 3]> = Vec::new();
+                for p in c {
+                    let k = cell(p);
+                    if out.last() != Some(&k) {
+                        out.push(k);
+                    }
+                }
+                out.sort_unstable();
+                out.dedup();
+                out
+            })
+            .collect();
+        cells.par_sort_unstable();
+        cells.dedup();
+        Occupancy { level, cells }
+    }
+
+    /// The cells at the coarser `level` (≥ `self.level`; a finer one returns a copy).
+    fn at(&self, level: i32) -> Vec<[i64; 3]> {
+        let shift = (level - self.level).clamp(0, 62) as u32;
+        let mut out: Vec<[i64; 3]> = self
+            .cells
+            .iter()
+            .map(|c| [c[0] >> shift, c[1] >> shift, c[2] >> shift])
+            .collect();
+        out.dedup();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+}
+
+/// Pair tests of a set of scans for one reach: whether some point of scan `i` may lie within
+/// `reach` metres of some point of scan `j`.
+#[derive(Debug, Clone)]
+pub struct Reach {
+    /// Each scan's cells at the common level.
+    cells: Vec<Vec<[i64; 3]>>,
+    /// The same grown by one cell in every direction.
+    grown: Vec<Vec<[i64; 3]>>,
+}
+
+impl Reach {
+    /// Builds the tests for `reach` metres over `occ` (one per scan).
+    pub fn new(occ: &[Occupancy], reach: f64) -> Reach {
+        let need = if reach > 0.0 && reach.is_finite() {
+            reach.log2().ceil().clamp(-40.0, 60.0) as i32
+        } else {
+            i32::MIN
+        };
+        let level = occ.iter().map(|o| o.level).fold(need, i32::max);
+        let cells: Vec<Vec<[i64; 3]>> = occ.par_iter().map(|o| o.at(level)).collect();
+        let grown = cells
+            .par_iter()
+            .map(|c| {
+                let mut g = Vec::with_capacity(c.len() * 27);
+                for k in c {
+                    for dx in -1..=1 {
+                        for dy in -1..=1 {
+                            for dz in -1..=1 {
+                                g.push([k[0] + dx, k[1] + dy, k[2] + dz]);
+                            }
+                        }
+                    }
+                }
+                g.sort_unstable();
+                g.dedup();
+                g
+            })
+            .collect();
+        Reach { cells, grown }
+    }
+
+    /// Whether scans `i` and `j` may come within the reach of each other (true for `i == j`).
+    pub fn meets(&self, i: usize, j: usize) -> bool {
+        if i == j {
+            return true;
+        }
+        let (Some(a), Some(b)) = (self.grown.get(i), self.cells.get(j)) else {
+            return true;
+        };
+        sorted_intersect(a, b)
+    }
+}
+
+/// Whether two sorted slices share a value.
+fn sorted_intersect(a: &[[i64; 3]], b: &[[i64; 3]]) -> bool {
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        match a[i].cmp(&b[j]) {
+            std::cmp::Ordering::Less => i += 1,
+            std::cmp::Ordering::Greater => j += 1,
+            std::cmp::Ordering::Equal => return true,
+        }
+    }
+    false
+}
+
+/// The diagonal of a world box.
+pub fn diagonal(b: &(DVec3, DVec3)) -> f64 {
+    (b.1 - b.0).length()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{DMat4, Vec3};
+
+    fn scan_of(points: Vec<Vec3>, pose: DMat4) -> Scan {
+        let mut s = Scan::from_points("s", points);
+        s.pose = pose;
+        s
+    }
+
+    fn plane(x0: f32, n: usize, step: f32) -> Vec<Vec3> {
+        (0..n * n)
+            .map(|k| Vec3::new(x0 + (k % n) as f32 * step, (k / n) as f32 * step, 0.0))
+            .collect()
+    }
+
+    #[test]
+    fn near_scans_meet_and_far_ones_do_not() {
+        // Two 1 m squares, the second starting 0.3 m after the first ends.
+        let a = scan_of(plane(0.0, 101, 0.01), DMat4::IDENTITY);
+        let b = scan_of(plane(1.3, 101, 0.01), DMat4::IDENTITY);
+        let occ = [Occupancy::of(&a, 1.5), Occupancy::of(&b, 1.5)];
+        // Reach beyond the gap: must meet (never a false "no").
+        assert!(Reach::new(&occ, 0.31).meets(0, 1));
+        assert!(Reach::new(&occ, 0.31).meets(1, 0));
+        // A reach far below the gap at a fine level: apart.
+        let fine = [Occupancy::of(&a, 0.5), Occupancy::of(&b, 0.5)];
+        assert!(!Reach::new(&fine, 0.05).meets(0, 1));
+    }
+
+    #[test]
+    fn never_misses_a_close_pair() {
+        // Points of b placed within the reach of a's points, at many offsets and levels.
+        for k in 0..50 {
+            let off = 0.013 * k as f32;
+            let reach = 0.02 + 0.01 * (k % 7) as f64;
+            let a = scan_of(vec![Vec3::new(off, 0.5 * off, 0.0)], DMat4::IDENTITY);
+            let d = (reach * 0.99) as f32;
+            let b = scan_of(
+                vec![Vec3::new(off + d * 0.6, 0.5 * off - d * 0.8, 0.0)],
+                DMat4::IDENTITY,
+            );
+            let occ = [Occupancy::of(&a, 1.0 + k as f64), Occupancy::of(&b, 0.1)];
+            assert!(Reach::new(&occ, reach).meets(0, 1), "{k}");
+        }
+    }
+
+    #[test]
+    fn georeferenced_poses_are_exact() {
+        let t = DMat4::from_translation(DVec3::new(512_000.0, 5_200_000.0, 300.0));
+        let a = scan_of(plane(0.0, 11, 0.1), t);
+        let b = scan_of(plane(5.0, 11, 0.1), t);
+        let occ = [Occupancy::of(&a, 1.5), Occupancy::of(&b, 1.5)];
+        assert!(!Reach::new(&occ, 0.5).meets(0, 1));
+        assert!(Reach::new(&occ, 4.5).meets(0, 1));
+    }
+}
