@@ -3,25 +3,29 @@
 # memory budget. Prints points/s, per-stage times, peak RSS and the time extrapolated to the
 # paper's castle (317 M points).
 #
-#   scripts/bench_scale.sh [STATIONS=24] [WIDTH=1440] [HEIGHT=720] [BUDGET=2G] [DIR=bench-scale]
+#   scripts/bench_scale.sh [STATIONS=24] [WIDTH=1440] [HEIGHT=720] [BUDGET=2G] [DIR=bench-scale] [SCENE=suite]
 #
-# 24 stations of 1440×720 are about 25 M points (0.7 GB of PLY); 50 stations make 52 M.
+# 24 stations of 1440×720 are about 25 M points (0.8 GB of PLY); 50 stations make 52 M.
+# SCENE `suite` is a row of rooms joined by doorways, four stations to a room, so each scan
+# overlaps its neighbours' as on a real site; `room` puts every station in one room, where every
+# scan overlaps every other (the merge's worst case).
 set -euo pipefail
 stations="${1:-24}"; width="${2:-1440}"; height="${3:-720}"; budget="${4:-2G}"
-dir="${5:-bench-scale}"
+dir="${5:-bench-scale}"; scene="${6:-suite}"
 here="$(cd "$(dirname "$0")" && pwd)"
 cd "$here/.."
 cargo build --release -q
 mvao="$PWD/target/release/mvao"
 mkdir -p "$dir"
-if [ ! -f "$dir/site/alignment.mlp" ] || [ "$(ls "$dir"/site/*.ply | wc -l)" != "$stations" ]; then
-    rm -rf "$dir/site"
-    "$mvao" synth --scene room --stations "$stations" --width "$width" --height "$height" -o "$dir/site"
+site="$dir/site-$scene-$stations-${width}x$height"
+if [ ! -f "$site/alignment.mlp" ]; then
+    rm -rf "$site"
+    "$mvao" synth --scene "$scene" --stations "$stations" --width "$width" --height "$height" -o "$site"
 fi
 rm -rf "$dir/out"
 /usr/bin/time -v "$mvao" merge -q --no-preview --radius 0.2 --tmax 0.4 --max-memory "$budget" \
-    -o "$dir/out" "$dir"/site/*.ply 2>"$dir/time.log"
-python3 - "$dir" "$budget" <<'PY'
+    -o "$dir/out" "$site"/*.ply 2>"$dir/time.log"
+python3 - "$dir" "$budget" "$site" <<'PY'
 import json, re, sys
 d, budget = sys.argv[1], sys.argv[2]
 r = json.load(open(f"{d}/out/report.json"))
@@ -29,7 +33,7 @@ log = open(f"{d}/time.log").read()
 wall = r["totals"]["wall_s"]
 pts = r["totals"]["points"]
 rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", log).group(1)) * 1024
-print(f"{len(r['scans'])} scans, {pts/1e6:.1f} M points, budget {budget}")
+print(f"{len(r['scans'])} scans, {pts/1e6:.1f} M points, budget {budget}, {sys.argv[3]}")
 print(f"end to end: {wall:.1f} s = {pts/wall/1e6:.2f} M points/s")
 for k, v in sorted(r["timings_s"].items(), key=lambda kv: -kv[1]):
     print(f"  {k:<10} {v:8.1f} s")

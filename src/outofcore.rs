@@ -231,6 +231,12 @@ fn commit(p: Pending<'_>, manifest: &mut Manifest, work_dir: &Path) -> Result<()
     manifest.record(&p.key, std::slice::from_ref(&p.rec), &p.params, &files)
 }
 
+/// Waits for a writer thread and passes on its result.
+fn join_writer(h: std::thread::ScopedJoinHandle<'_, Result<()>>) -> Result<()> {
+    h.join()
+        .map_err(|_| Error::Param("writing the outputs failed (internal error)".into()))?
+}
+
 /// A cache of other scans' maps, bounded in bytes. The merge's order of loads is known in
 /// advance, so the map evicted is the one needed again the latest (Belady's rule): with a
 /// cyclic order, least-recently-used would miss every time once the maps do not all fit.
@@ -763,143 +769,172 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         loads: 0,
         bytes_read: 0,
     };
-    for fi in 0..placer.len() {
-        let mine: Vec<usize> = (0..n)
-            .filter(|&i| cat[i].file == fi && selected(&cat[i]))
-            .collect();
-        if mine.is_empty() {
-            continue;
-        }
-        let pf = placer.open(fi)?;
-        merge_read += std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len());
-        let mut aos: Vec<Vec<f32>> = vec![Vec::new(); pf.scans.len()];
-        for &i in &mine {
-            let s = &pf.scans[cat[i].index];
-            // The own maps come through the cache: they are other scans' partner maps too.
-            let own_pts = products::load_points(&work_dir, &cat[i].key)?;
-            merge_read += view_bytes(0, s.len() as u64);
-            cache.measure();
-            let own = cache.get(i, &work_dir, &cat[i].key, pixels_of(i))?;
-            let mut no_sample = 0u64;
-            let own_ssao: Vec<f32> = own_pts
-                .pixel
-                .iter()
-                .map(|&px| {
-                    if px == EMPTY {
-                        no_sample += 1;
-                        1.0
-                    } else {
-                        no_sample += u64::from(own.no_sample[px as usize]);
-                        own.ao[px as usize]
-                    }
-                })
+    // A file's outputs are written while the next file is merged, when the budget holds two
+    // input files beside the maps.
+    let overlap = 10 * max_file_bytes + 3 * out.plan.largest_view_bytes + (64 << 20) <= budget;
+    std::thread::scope(|sc| -> Result<()> {
+        let mut writing: Option<std::thread::ScopedJoinHandle<'_, Result<()>>> = None;
+        for fi in 0..placer.len() {
+            let mine: Vec<usize> = (0..n)
+                .filter(|&i| cat[i].file == fi && selected(&cat[i]))
                 .collect();
-            let (ao, st) = if prm.ssao_only {
-                (own_ssao.clone(), MergeStats::default())
-            } else {
-                let t = Target {
-                    index: i,
-                    points: &s.points,
-                    radii: &own_pts.radii,
-                    own_pixel: &own_pts.pixel,
-                    pose: s.pose,
-                    proj: &own.projection,
-                };
-                let mut acc = Accum::new(s.len());
-                for j in (0..n).filter(|&j| partner(i, j)) {
-                    let pose_j = if j == i { s.pose } else { cat[j].pose };
-                    let m = if j == i {
-                        own.clone()
-                    } else {
-                        cache.get(j, &work_dir, &cat[j].key, pixels_of(j))?
-                    };
-                    merge::accumulate(&mut acc, &t, j, &m.view(pose_j), &mp, &|_| {});
-                }
-                acc.finish(&own_ssao)
-            };
-            obs.advance(s.len() as u64);
-            if cfg.preview {
-                let g = &own.gbuf;
-                let vals: Vec<Option<f32>> = g
-                    .point
+            if mine.is_empty() {
+                continue;
+            }
+            let pf = placer.open(fi)?;
+            merge_read += std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len());
+            let mut aos: Vec<Vec<f32>> = vec![Vec::new(); pf.scans.len()];
+            for &i in &mine {
+                let s = &pf.scans[cat[i].index];
+                // The own maps come through the cache: they are other scans' partner maps too.
+                let own_pts = products::load_points(&work_dir, &cat[i].key)?;
+                merge_read += view_bytes(0, s.len() as u64);
+                cache.measure();
+                let own = cache.get(i, &work_dir, &cat[i].key, pixels_of(i))?;
+                let mut no_sample = 0u64;
+                let own_ssao: Vec<f32> = own_pts
+                    .pixel
                     .iter()
-                    .map(|&p| (p != EMPTY).then(|| ao[p as usize]))
+                    .map(|&px| {
+                        if px == EMPTY {
+                            no_sample += 1;
+                            1.0
+                        } else {
+                            no_sample += u64::from(own.no_sample[px as usize]);
+                            own.ao[px as usize]
+                        }
+                    })
                     .collect();
-                write_preview(
-                    &cfg.out_dir.join(format!("{}.png", s.name)),
-                    g.width,
-                    g.height,
-                    &vals,
-                    cfg.gamma,
-                )?;
-            }
-            let sum = sums[i]
-                .clone()
-                .ok_or_else(|| Error::Param("summary missing (internal error)".into()))?;
-            let (mn, mx, total) = ao
-                .iter()
-                .fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
-                    (a.0.min(v), a.1.max(v), a.2 + v as f64)
-                });
-            out.scans.push(ScanReport {
-                name: s.name.clone(),
-                input: cfg.scans[fi].display().to_string(),
-                output: String::new(),
-                vertices: s.vertex_count,
-                points: s.len(),
-                skipped_nonfinite: s.skipped_nonfinite,
-                sensor_model: sum.sensor_model.clone(),
-                map_size: sum.map_size,
-                map_filled: sum.filled,
-                native_grid: sum.native_grid,
-                grid_fit_rms_px: sum.fit_rms_px,
-                sensor_reason: sum.reason.clone(),
-                normals: sum.normals.clone(),
-                no_ssao_sample: no_sample,
-                zero_merge_weight: st.zero_weight,
-                point_views: st.point_views,
-                ao_min: mn,
-                ao_mean: (total / s.len().max(1) as f64) as f32,
-                ao_max: mx,
-            });
-            if keep_values {
-                out.values.push((s.name.clone(), own_ssao, ao.clone()));
-            }
-            aos[cat[i].index] = ao;
-        }
-        // Write this file's outputs (whole files only: with --only every scan of a
-        // multi-scan file must be selected).
-        let ds = Dataset {
-            scans: pf.scans,
-            origin: (0..aos.len()).map(|k| (0, k)).collect(),
-            file_to_world: pf.file_to_world,
-            pose_source: pf.pose_source,
-            alignment: None,
-            warnings: Vec::new(),
-            files: vec![pf.file],
-        };
-        let tw = Instant::now();
-        // Writing copies the input's content: room for it before the copy.
-        cache.measure();
-        cache.make_room(3 * std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
-        let units = results::plan(&ds, cfg.format, &cfg.out_dir)?;
-        for u in &units {
-            if u.scans.iter().all(|&k| !aos[k].is_empty()) {
-                results::write(u, &ds, &aos, wopts, &comment)?;
-                for &k in &u.scans {
-                    if let Some(r) = out.scans.iter_mut().find(|r| r.name == ds.scans[k].name) {
-                        r.output = u.path.display().to_string();
+                let (ao, st) = if prm.ssao_only {
+                    (own_ssao.clone(), MergeStats::default())
+                } else {
+                    let t = Target {
+                        index: i,
+                        points: &s.points,
+                        radii: &own_pts.radii,
+                        own_pixel: &own_pts.pixel,
+                        pose: s.pose,
+                        proj: &own.projection,
+                    };
+                    let mut acc = Accum::new(s.len());
+                    for j in (0..n).filter(|&j| partner(i, j)) {
+                        let pose_j = if j == i { s.pose } else { cat[j].pose };
+                        let m = if j == i {
+                            own.clone()
+                        } else {
+                            cache.get(j, &work_dir, &cat[j].key, pixels_of(j))?
+                        };
+                        merge::accumulate(&mut acc, &t, j, &m.view(pose_j), &mp, &|_| {});
                     }
+                    acc.finish(&own_ssao)
+                };
+                obs.advance(s.len() as u64);
+                if cfg.preview {
+                    let g = &own.gbuf;
+                    let vals: Vec<Option<f32>> = g
+                        .point
+                        .iter()
+                        .map(|&p| (p != EMPTY).then(|| ao[p as usize]))
+                        .collect();
+                    write_preview(
+                        &cfg.out_dir.join(format!("{}.png", s.name)),
+                        g.width,
+                        g.height,
+                        &vals,
+                        cfg.gamma,
+                    )?;
                 }
-            } else if u.scans.iter().any(|&k| !aos[k].is_empty()) {
-                out.warnings.push(format!(
-                    "{}: not written, --only selected some but not all of its scans",
-                    u.path.display()
-                ));
+                let sum = sums[i]
+                    .clone()
+                    .ok_or_else(|| Error::Param("summary missing (internal error)".into()))?;
+                let (mn, mx, total) = ao
+                    .iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
+                        (a.0.min(v), a.1.max(v), a.2 + v as f64)
+                    });
+                out.scans.push(ScanReport {
+                    name: s.name.clone(),
+                    input: cfg.scans[fi].display().to_string(),
+                    output: String::new(),
+                    vertices: s.vertex_count,
+                    points: s.len(),
+                    skipped_nonfinite: s.skipped_nonfinite,
+                    sensor_model: sum.sensor_model.clone(),
+                    map_size: sum.map_size,
+                    map_filled: sum.filled,
+                    native_grid: sum.native_grid,
+                    grid_fit_rms_px: sum.fit_rms_px,
+                    sensor_reason: sum.reason.clone(),
+                    normals: sum.normals.clone(),
+                    no_ssao_sample: no_sample,
+                    zero_merge_weight: st.zero_weight,
+                    point_views: st.point_views,
+                    ao_min: mn,
+                    ao_mean: (total / s.len().max(1) as f64) as f32,
+                    ao_max: mx,
+                });
+                if keep_values {
+                    out.values.push((s.name.clone(), own_ssao, ao.clone()));
+                }
+                aos[cat[i].index] = ao;
             }
+            // Write this file's outputs (whole files only: with --only every scan of a
+            // multi-scan file must be selected).
+            let ds = Dataset {
+                scans: pf.scans,
+                origin: (0..aos.len()).map(|k| (0, k)).collect(),
+                file_to_world: pf.file_to_world,
+                pose_source: pf.pose_source,
+                alignment: None,
+                warnings: Vec::new(),
+                files: vec![pf.file],
+            };
+            let tw = Instant::now();
+            // Writing copies the input's content: room for it before the copy.
+            cache.measure();
+            cache.make_room(3 * std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
+            let units = results::plan(&ds, cfg.format, &cfg.out_dir)?;
+            let mut todo = Vec::new();
+            for u in units {
+                if u.scans.iter().all(|&k| !aos[k].is_empty()) {
+                    for &k in &u.scans {
+                        if let Some(r) = out.scans.iter_mut().find(|r| r.name == ds.scans[k].name) {
+                            r.output = u.path.display().to_string();
+                        }
+                    }
+                    todo.push(u);
+                } else if u.scans.iter().any(|&k| !aos[k].is_empty()) {
+                    out.warnings.push(format!(
+                        "{}: not written, --only selected some but not all of its scans",
+                        u.path.display()
+                    ));
+                }
+            }
+            // The previous file's outputs are complete before this file's are started.
+            if let Some(h) = writing.take() {
+                join_writer(h)?;
+            }
+            let comment = comment.clone();
+            let write_all = move || -> Result<()> {
+                for u in &todo {
+                    results::write(u, &ds, &aos, wopts, &comment)?;
+                }
+                Ok(())
+            };
+            if overlap {
+                writing = Some(sc.spawn(write_all));
+            } else {
+                write_all()?;
+            }
+            write_s += tw.elapsed().as_secs_f64();
         }
-        write_s += tw.elapsed().as_secs_f64();
-    }
+        if let Some(h) = writing.take() {
+            let tw = Instant::now();
+            join_writer(h)?;
+            write_s += tw.elapsed().as_secs_f64();
+        }
+        Ok(())
+    })?;
     out.map_loads = cache.loads;
     merge_read += cache.bytes_read;
     obs.done("merge", t0.elapsed().as_secs_f64());

@@ -200,6 +200,28 @@ mod tests {
     }
 
     #[test]
+    fn scans_whose_boxes_overlap_can_still_be_apart() {
+        // A long strip along y = 0 with one far point, so its box covers the second scan,
+        // a patch 5 m away from every point of the strip.
+        let mut strip = plane(0.0, 11, 0.1);
+        strip.extend((0..100).map(|k| Vec3::new(0.1 * k as f32, 0.0, 0.0)));
+        strip.push(Vec3::new(10.0, 10.0, 0.0));
+        let patch: Vec<Vec3> = plane(0.0, 11, 0.1)
+            .iter()
+            .map(|p| *p + Vec3::new(0.0, 6.0, 0.0))
+            .collect();
+        let (a, b) = (
+            scan_of(strip, DMat4::IDENTITY),
+            scan_of(patch, DMat4::IDENTITY),
+        );
+        let occ = [Occupancy::of(&a, 14.2), Occupancy::of(&b, 1.5)];
+        let r = Reach::new(&occ, 0.8);
+        assert!(!r.meets(0, 1) && !r.meets(1, 0));
+        // Within reach of the far point once the reach covers the gap.
+        assert!(Reach::new(&occ, 9.0).meets(0, 1));
+    }
+
+    #[test]
     fn georeferenced_poses_are_exact() {
         let t = DMat4::from_translation(DVec3::new(512_000.0, 5_200_000.0, 300.0));
         let a = scan_of(plane(0.0, 11, 0.1), t);

@@ -1,0 +1,47 @@
+//! Horizon SSAO alone on one 1440×720 equirect station of the synthetic room (best of five),
+//! for tuning the estimator: `cargo bench --bench ssao`.
+
+use mvao::pipeline::prepare_view;
+use mvao::projection::SensorModel;
+use mvao::sensor::ProjectionChoice;
+use mvao::ssao::{self, Estimator, SsaoParams};
+use mvao::synth::{scan_scene, station_layout, SceneKind};
+use std::time::Instant;
+
+fn main() {
+    let st = station_layout(SceneKind::Room, SensorModel::Equirect, 1, 1440, 720)[0];
+    let mut s = scan_scene(&SceneKind::Room.scene(), &st, 0.002, 0, "s0");
+    s.pose = st.pose();
+    let prm = SsaoParams {
+        estimator: Estimator::Horizon,
+        radius: 0.2,
+        tmax: 0.4,
+        samples: 32,
+        directions: 8,
+        steps: 8,
+        seed: 0,
+        blur: true,
+    };
+    let v = prepare_view(&s, ProjectionChoice::Auto, &prm).expect("prepare");
+    let (g, proj) = (&v.gbuf, &v.sensor.projection);
+    for (d, st) in [(8u32, 8u32), (1, 8), (8, 1)] {
+        let p = SsaoParams {
+            directions: d,
+            steps: st,
+            ..prm
+        };
+        let mut best = f64::INFINITY;
+        let mut sum = 0.0f64;
+        for _ in 0..5 {
+            let t = Instant::now();
+            let m = ssao::compute(g, proj, &p);
+            best = best.min(t.elapsed().as_secs_f64());
+            sum = m.ao.iter().map(|&a| a as f64).sum();
+        }
+        println!(
+            "horizon {d}x{st}: {best:.3} s for {} pixels = {:.2} M px/s (sum {sum:.3})",
+            g.filled(),
+            g.filled() as f64 / best / 1e6
+        );
+    }
+}
