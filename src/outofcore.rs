@@ -791,20 +791,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 merge_read += view_bytes(0, s.len() as u64);
                 cache.measure();
                 let own = cache.get(i, &work_dir, &cat[i].key, pixels_of(i))?;
-                let mut no_sample = 0u64;
-                let own_ssao: Vec<f32> = own_pts
-                    .pixel
-                    .iter()
-                    .map(|&px| {
-                        if px == EMPTY {
-                            no_sample += 1;
-                            1.0
-                        } else {
-                            no_sample += u64::from(own.no_sample[px as usize]);
-                            own.ao[px as usize]
-                        }
-                    })
-                    .collect();
+                let (own_ssao, no_sample) =
+                    crate::pipeline::point_values(&own_pts.pixel, &own.ao, &own.no_sample);
                 let (ao, st) = if prm.ssao_only {
                     (own_ssao.clone(), MergeStats::default())
                 } else {

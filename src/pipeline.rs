@@ -138,24 +138,27 @@ impl PreparedView {
     /// Each point's SSAO (its pixel's value; 1 for a point outside the map) and whether it
     /// had no valid sample.
     pub fn point_ssao(&self) -> (Vec<f32>, u64) {
-        let mut none = 0u64;
-        let v = self
-            .pixel
-            .iter()
-            .map(|&px| {
-                if px == EMPTY {
-                    none += 1;
-                    1.0
-                } else {
-                    if self.ssao.no_sample[px as usize] {
-                        none += 1;
-                    }
-                    self.ssao.ao[px as usize]
-                }
-            })
-            .collect();
-        (v, none)
+        point_values(&self.pixel, &self.ssao.ao, &self.ssao.no_sample)
     }
+}
+
+/// Each point's value in a map (`ao` at its pixel; 1 for a point outside the map) and how
+/// many points had no valid sample (outside the map, or `no_sample` at their pixel).
+pub fn point_values(pixel: &[u32], ao: &[f32], no_sample: &[bool]) -> (Vec<f32>, u64) {
+    let mut none = 0u64;
+    let v = pixel
+        .iter()
+        .map(|&px| {
+            if px == EMPTY {
+                none += 1;
+                1.0
+            } else {
+                none += u64::from(no_sample[px as usize]);
+                ao[px as usize]
+            }
+        })
+        .collect();
+    (v, none)
 }
 
 /// Result of the in-memory computation for one scan.

@@ -312,11 +312,8 @@ fn warp_valid(w: &Warp) -> bool {
 /// caller recomputes): no entry, another mvao version, a missing, truncated or corrupt product.
 pub fn load_view(dir: &Path, key: &str) -> Result<PreparedView> {
     let e = current_entry(dir, key)?;
+    let pts = read_points(dir, &e)?;
     let meta = e.products.view;
-    let (ppath, pbytes) = read_product(dir, &e.products.points)?;
-    let pts = points::decode(&pbytes, &ppath)?;
-    drop(pbytes);
-    check_points(&ppath, &pts, &meta)?;
     let (mpath, mbytes) = read_product(dir, &e.products.maps)?;
     let maps = exr_io::decode_maps(&mbytes, &mpath, Some(meta.points), true)?;
     drop(mbytes);
@@ -408,12 +405,15 @@ pub fn load_maps_for_merge(dir: &Path, key: &str) -> Result<MergeMaps> {
 /// Loads `key`'s per-point products (radius, pixel, depth, grid pixel), checked against its
 /// entry and against the map size.
 pub fn load_points(dir: &Path, key: &str) -> Result<points::Points> {
-    let e = current_entry(dir, key)?;
-    let meta = e.products.view;
+    read_points(dir, &current_entry(dir, key)?)
+}
+
+/// Reads and checks the per-point products of an entry.
+fn read_points(dir: &Path, e: &Entry) -> Result<points::Points> {
     let (ppath, pbytes) = read_product(dir, &e.products.points)?;
     let pts = points::decode(&pbytes, &ppath)?;
     drop(pbytes);
-    check_points(&ppath, &pts, &meta)?;
+    check_points(&ppath, &pts, &e.products.view)?;
     Ok(pts)
 }
 
