@@ -84,6 +84,8 @@ impl Occupancy {
 /// `reach` metres of some point of scan `j`.
 #[derive(Debug, Clone)]
 pub struct Reach {
+    /// An unbounded reach: every pair may meet.
+    unbounded: bool,
     /// Each scan's cells at the common level.
     cells: Vec<Vec<[i64; 3]>>,
     /// The same grown by one cell in every direction.
@@ -93,7 +95,14 @@ pub struct Reach {
 impl Reach {
     /// Builds the tests for `reach` metres over `occ` (one per scan).
     pub fn new(occ: &[Occupancy], reach: f64) -> Reach {
-        let need = if reach > 0.0 && reach.is_finite() {
+        if !(reach < f64::INFINITY) {
+            return Reach {
+                unbounded: true,
+                cells: Vec::new(),
+                grown: Vec::new(),
+            };
+        }
+        let need = if reach > 0.0 {
             reach.log2().ceil().clamp(-40.0, 60.0) as i32
         } else {
             i32::MIN
@@ -118,12 +127,16 @@ impl Reach {
                 g
             })
             .collect();
-        Reach { cells, grown }
+        Reach {
+            unbounded: false,
+            cells,
+            grown,
+        }
     }
 
     /// Whether scans `i` and `j` may come within the reach of each other (true for `i == j`).
     pub fn meets(&self, i: usize, j: usize) -> bool {
-        if i == j {
+        if i == j || self.unbounded {
             return true;
         }
         let (Some(a), Some(b)) = (self.grown.get(i), self.cells.get(j)) else {
@@ -219,6 +232,16 @@ mod tests {
         assert!(!r.meets(0, 1) && !r.meets(1, 0));
         // Within reach of the far point once the reach covers the gap.
         assert!(Reach::new(&occ, 9.0).meets(0, 1));
+    }
+
+    #[test]
+    fn an_unbounded_reach_meets_everything() {
+        let a = scan_of(plane(0.0, 11, 0.1), DMat4::IDENTITY);
+        let b = scan_of(plane(500.0, 11, 0.1), DMat4::IDENTITY);
+        let occ = [Occupancy::of(&a, 1.5), Occupancy::of(&b, 1.5)];
+        assert!(Reach::new(&occ, f64::INFINITY).meets(0, 1));
+        assert!(Reach::new(&occ, f64::NAN).meets(0, 1));
+        assert!(!Reach::new(&occ, 1.0).meets(0, 1));
     }
 
     #[test]
