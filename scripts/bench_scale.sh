@@ -37,6 +37,9 @@ print(f"{len(r['scans'])} scans, {pts/1e6:.1f} M points, budget {budget}, {sys.a
 print(f"end to end: {wall:.1f} s = {pts/wall/1e6:.2f} M points/s")
 for k, v in sorted(r["timings_s"].items(), key=lambda kv: -kv[1]):
     print(f"  {k:<10} {v:8.1f} s")
+cpu = sum(float(re.search(rf"{k} time \(seconds\): ([0-9.]+)", log).group(1)) for k in ("User", "System"))
+# CPU time varies less than wall time on a shared machine.
+print(f"CPU: {cpu:.1f} s user+system = {cpu/wall:.2f} cores busy, {cpu/(pts/1e6):.2f} CPU-s per M points")
 print(f"peak RSS: {rss/2**30:.2f} GiB (time -v), {r['peak_rss_bytes']/2**30:.2f} GiB (report)")
 print(f"maps loaded by the merge: {r['map_loads']}; pairs kept {r['plan']['pairs_kept']}, skipped {r['plan']['pairs_skipped']}")
 print("bytes read: " + ", ".join(f"{k} {v/2**30:.2f} GiB" for k, v in r["bytes_read"].items()))
