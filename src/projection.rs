@@ -297,6 +297,31 @@ impl Projection {
         }
     }
 
+    /// The image-space derivative of [`Projection::project`] at `p` along `d` (pixels per unit
+    /// of `d`), in closed form for an equirect model without warps; `None` for the other
+    /// models (callers take a finite difference) and where it is undefined (on the pole).
+    #[inline]
+    pub fn image_derivative(&self, p: Vec3, d: Vec3) -> Option<(f32, f32)> {
+        let Model::Equirect { rot, sx, sy, .. } = self.model else {
+            return None;
+        };
+        if self.warp_x.is_some() || self.warp_y.is_some() {
+            return None;
+        }
+        let (s, ds) = (rot * p, rot * d);
+        let r2 = s.x * s.x + s.y * s.y;
+        let d2 = r2 + s.z * s.z;
+        if !(r2 > 0.0 && d2.is_finite()) {
+            return None;
+        }
+        let r = r2.sqrt();
+        // d(az) = (x dy − y dx)/r², d(el) = (r² dz − z (x dx + y dy))/(r·|s|²).
+        let daz = (s.x * ds.y - s.y * ds.x) / r2;
+        let del = (r2 * ds.z - s.z * (s.x * ds.x + s.y * ds.y)) / (r * d2);
+        let out = (sx * daz, sy * del);
+        (out.0.is_finite() && out.1.is_finite()).then_some(out)
+    }
+
     /// The pixel index (row-major) holding continuous position `(x, y)`, wrapping x on a
     /// full-circle map; `None` outside the map.
     #[inline]

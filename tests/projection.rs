@@ -163,3 +163,32 @@ fn warped_grid_axes_round_trip() {
         assert!((w.apply(kn) - x).abs() < 1e-4);
     }
 }
+
+#[test]
+fn equirect_image_derivative_matches_finite_differences() {
+    let mut p = full_sphere(1440, 720);
+    if let Model::Equirect { rot, .. } = &mut p.model {
+        *rot = Mat3::from_rotation_x(0.4) * Mat3::from_rotation_z(1.1);
+    }
+    let dirs = [Vec3::X, Vec3::Y, Vec3::Z, Vec3::new(0.3, -0.7, 0.2)];
+    for k in 0..200 {
+        let t = k as f32 * 0.37;
+        let q = Vec3::new(3.0 * t.cos(), 2.0 * (1.3 * t).sin(), 1.5 * (0.7 * t).cos()) + 0.1;
+        let at = p.project(q).expect("projects");
+        for d in dirs {
+            let (dx, dy) = p.image_derivative(q, d).expect("closed form");
+            let h = 1e-3f32;
+            let fd = p.project(q + d * h).expect("projects");
+            let mut fx = fd.x - at.x;
+            fx -= p.width as f32 * (fx / p.width as f32).round();
+            let (fx, fy) = (fx / h, (fd.y - at.y) / h);
+            let scale = dx.abs().max(dy.abs()).max(1.0);
+            assert!(
+                (fx - dx).abs() < 0.02 * scale && (fy - dy).abs() < 0.02 * scale,
+                "{q:?} {d:?}: ({dx}, {dy}) vs ({fx}, {fy})"
+            );
+        }
+    }
+    // Undefined at the sensor itself.
+    assert!(p.image_derivative(Vec3::ZERO, Vec3::X).is_none());
+}

@@ -271,8 +271,14 @@ impl<'a> Ctx<'a> {
             eps = 1e-3;
         }
         let (e1, e2) = view.any_orthonormal_pair();
-        let d1 = self.screen_delta(pc.x, pc.y, proj.project(p + e1 * eps));
-        let d2 = self.screen_delta(pc.x, pc.y, proj.project(p + e2 * eps));
+        // Only the directions of d1, d2 matter (the march is normalised to the t_max ellipse).
+        let (d1, d2) = match (proj.image_derivative(p, e1), proj.image_derivative(p, e2)) {
+            (Some(a), Some(b)) => (Some(a), Some(b)),
+            _ => (
+                self.screen_delta(pc.x, pc.y, proj.project(p + e1 * eps)),
+                self.screen_delta(pc.x, pc.y, proj.project(p + e2 * eps)),
+            ),
+        };
         let a = nrm.dot(view);
         let (pa, na, va) = (Vec3A::from(p), Vec3A::from(nrm), Vec3A::from(view));
         let (e1, e2) = (Vec3A::from(e1), Vec3A::from(e2));
