@@ -35,14 +35,19 @@ where
         }
         Ok(())
     })();
-    match res {
-        Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
+    finish(&tmp, path, res.map_err(|e| Error::io(path, e)))
+}
+
+/// Renames the written temporary file `tmp` over `path`, or removes it when writing failed.
+fn finish(tmp: &Path, path: &Path, written: Result<()>) -> Result<()> {
+    match written {
+        Ok(()) => std::fs::rename(tmp, path).map_err(|e| {
+            let _ = std::fs::remove_file(tmp);
             Error::io(path, e)
         }),
         Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(Error::io(path, e))
+            let _ = std::fs::remove_file(tmp);
+            Err(e)
         }
     }
 }
@@ -65,16 +70,7 @@ where
         .open(&tmp)
         .map_err(|e| Error::io(path, e))?;
     let res = fill(file).and_then(|file| file.sync_all().map_err(|e| Error::io(path, e)));
-    match res {
-        Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            Error::io(path, e)
-        }),
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(e)
-        }
-    }
+    finish(&tmp, path, res)
 }
 
 /// Like [`write_atomic`], for writers that seek and read back what they wrote (E57 pages):

@@ -427,20 +427,9 @@ impl PlyFile {
             header,
             data: Vec::new(),
         };
+        // Every body must match its declaration, as for `write_path`.
+        self.header_text(path)?;
         let head = shell.header_text_unchecked(path)?;
-        for (k, d) in self.header.elements.iter().enumerate() {
-            if k != ei {
-                let b = self.data.get(k).ok_or_else(|| {
-                    Error::Param(format!(
-                        "cannot write {}: element bodies missing",
-                        path.display()
-                    ))
-                })?;
-                if Layout::of(d, b).is_none() {
-                    return general();
-                }
-            }
-        }
         // Rows are built in parallel, a batch at a time, so the copy stays small.
         const ROWS: usize = 1 << 15;
         let build = |first: usize, chunk: &[u8]| -> Vec<u8> {

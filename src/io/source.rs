@@ -283,10 +283,10 @@ pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
     };
     // An unusable normal becomes zero and is re-estimated downstream.
     let unit = |v: &Vec3| v.try_normalize().unwrap_or(Vec3::ZERO);
-    let all_finite = raw.xyz.par_iter().all(|p| local(p).is_finite());
-    let (points, source_index, normals, cells, skipped) = if all_finite {
-        // The usual case, in parallel: every vertex is a point.
-        let points: Vec<Vec3> = raw.xyz.par_iter().map(local).collect();
+    let all: Vec<Vec3> = raw.xyz.par_iter().map(local).collect();
+    let (points, source_index, normals, cells, skipped) = if all.par_iter().all(|v| v.is_finite()) {
+        // The usual case: every vertex is a point.
+        let points = all;
         let source_index: Vec<u32> = (0..n as u32).collect();
         let normals = raw
             .normals
@@ -306,8 +306,7 @@ pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
             .as_ref()
             .map(|_| (Vec::with_capacity(n), Vec::with_capacity(n)));
         let mut skipped = 0usize;
-        for (i, p) in raw.xyz.iter().enumerate() {
-            let v = local(p);
+        for (i, &v) in all.iter().enumerate() {
             if !v.is_finite() {
                 skipped += 1;
                 continue;
