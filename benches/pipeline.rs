@@ -2,8 +2,9 @@
 //! ≈1M points each): `cargo bench`. Prints points/s for each per-view stage and
 //! point-views/s for the merge.
 
+use mvao::merge::cull::PointCells;
 use mvao::merge::{self, MergeParams};
-use mvao::pipeline::{merge_views, prepare_view};
+use mvao::pipeline::{merge_views, prepare_view, view_cells, view_maps};
 use mvao::projection::SensorModel;
 use mvao::sensor::ProjectionChoice;
 use mvao::ssao::{self, Estimator, SsaoParams};
@@ -112,7 +113,18 @@ fn main() {
             px as f64 / t / 1e6
         );
     }
-    let mv = merge_views(&views, &scans);
+    let packed = view_maps(
+        &views,
+        &MergeParams {
+            neighbors: 1,
+            dmin: 0.0,
+            dmax: 10.0,
+            border_px: 64.0,
+        },
+    );
+    let cells = view_cells(&views, &scans);
+    let mv = merge_views(&views, &packed, &scans, Some(&cells));
+    let own_cells = PointCells::new(&scans[0].points, &views[0].radii, scans[0].pose);
     for nb in [1u32, 3, 5] {
         let mp = MergeParams {
             neighbors: nb,
@@ -128,6 +140,7 @@ fn main() {
                 &views[0].radii,
                 &own,
                 &views[0].pixel,
+                Some(&own_cells),
                 &mv,
                 &[false; 3],
                 &mp,

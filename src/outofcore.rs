@@ -17,6 +17,7 @@ use crate::gbuffer::EMPTY;
 use crate::io::dataset::{Dataset, Placer};
 use crate::io::output::write_preview;
 use crate::io::results::{self, WriteOptions};
+use crate::merge::cull::PointCells;
 use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
 use crate::pipeline::{
     depth_range, merge_params, prepare_view, robust_diagonal, same_file, world_bounds, Config,
@@ -27,7 +28,7 @@ use crate::report::ScanReport;
 use crate::scan::occupancy::Occupancy;
 use crate::scan::Scan;
 use crate::ssao::SsaoParams;
-use glam::DVec3;
+use glam::{DMat4, DVec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -278,7 +279,16 @@ impl MapCache {
         }
     }
 
-    fn get(&mut self, j: usize, dir: &Path, key: &str, pixels: u64) -> Result<Arc<MergeMaps>> {
+    /// Scan `j`'s maps (loaded unless held), with its cells placed at `pose`.
+    fn get(
+        &mut self,
+        j: usize,
+        dir: &Path,
+        key: &str,
+        pixels: u64,
+        pose: DMat4,
+        prm: &MergeParams,
+    ) -> Result<Arc<MergeMaps>> {
         // Skip ahead to this request in the planned order.
         if let Some(p) = self.future[self.pos.min(self.future.len())..]
             .iter()
@@ -290,11 +300,13 @@ impl MapCache {
             // Decoding holds the file's bytes beside the maps for a moment.
             let bytes = view_bytes(pixels, 0);
             self.make_room(2 * bytes);
-            let m = products::load_maps_for_merge(dir, key)?;
+            let mut m = products::load_maps_for_merge(dir, key)?;
+            m.place(pose, prm);
+            let held = m.heap_bytes();
             self.loads += 1;
             self.bytes_read += bytes;
-            self.used += bytes;
-            self.maps.insert(j, (Arc::new(m), bytes));
+            self.used += held;
+            self.maps.insert(j, (Arc::new(m), held));
         }
         self.maps
             .get(&j)
@@ -790,12 +802,13 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 let own_pts = products::load_points(&work_dir, &cat[i].key)?;
                 merge_read += view_bytes(0, s.len() as u64);
                 cache.measure();
-                let own = cache.get(i, &work_dir, &cat[i].key, pixels_of(i))?;
+                let own = cache.get(i, &work_dir, &cat[i].key, pixels_of(i), s.pose, &mp)?;
                 let (own_ssao, no_sample) =
                     crate::pipeline::point_values(&own_pts.pixel, &own.ao, &own.no_sample);
                 let (ao, st) = if prm.ssao_only {
                     (own_ssao.clone(), MergeStats::default())
                 } else {
+                    let cells = PointCells::new(&s.points, &own_pts.radii, s.pose);
                     let t = Target {
                         index: i,
                         points: &s.points,
@@ -803,6 +816,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                         own_pixel: &own_pts.pixel,
                         pose: s.pose,
                         proj: &own.projection,
+                        cells: Some(&cells),
                     };
                     let mut acc = Accum::new(s.len());
                     for j in (0..n).filter(|&j| partner(i, j)) {
@@ -810,9 +824,12 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                         let m = if j == i {
                             own.clone()
                         } else {
-                            cache.get(j, &work_dir, &cat[j].key, pixels_of(j))?
+                            cache.get(j, &work_dir, &cat[j].key, pixels_of(j), pose_j, &mp)?
                         };
-                        merge::accumulate(&mut acc, &t, j, &m.view(pose_j), &mp, &|_| {});
+                        let v = m.view(pose_j).ok_or_else(|| {
+                            Error::Param("maps used before placing (internal error)".into())
+                        })?;
+                        merge::accumulate(&mut acc, &t, j, &v, &mp, &|_| {});
                     }
                     acc.finish(&own_ssao)
                 };
@@ -857,6 +874,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                     no_ssao_sample: no_sample,
                     zero_merge_weight: st.zero_weight,
                     point_views: st.point_views,
+                    point_views_culled: st.culled,
                     ao_min: mn,
                     ao_mean: (total / s.len().max(1) as f64) as f32,
                     ao_max: mx,

@@ -7,7 +7,8 @@ use crate::gbuffer::{self, GBuffer, EMPTY};
 use crate::io::dataset::PlaceOptions;
 use crate::io::output::ColorMode;
 use crate::io::source::Format;
-use crate::merge::{self, MergeParams, MergeStats, View};
+use crate::merge::cull::{PointCells, ViewCells};
+use crate::merge::{self, MergeParams, MergeStats, View, ViewMaps};
 use crate::projection::Projection;
 use crate::report::{Parameters, Report, Totals};
 use crate::scan::occupancy::{diagonal, Occupancy, Reach};
@@ -431,7 +432,17 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         tmax,
         max_rad.iter().copied().fold(0.0, f64::max),
     );
-    let mv = merge_views(&views, scans);
+    let vcells = if prm.ssao_only {
+        Vec::new()
+    } else {
+        view_cells(&views, scans)
+    };
+    let vmaps = if prm.ssao_only {
+        Vec::new()
+    } else {
+        view_maps(&views, &mp)
+    };
+    let mv = merge_views(&views, &vmaps, scans, Some(&vcells));
     obs.stage("merge", if prm.ssao_only { 0 } else { total });
     let t0 = Instant::now();
     let mut results = Vec::with_capacity(scans.len());
@@ -443,12 +454,14 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
             let skip: Vec<bool> = (0..scans.len())
                 .map(|j| !pairs.meets(i, j, max_rad[i].max(max_rad[j])))
                 .collect();
+            let cells = PointCells::new(&s.points, &v.radii, s.pose);
             merge::merge_scan(
                 i,
                 &s.points,
                 &v.radii,
                 &own,
                 &v.pixel,
+                Some(&cells),
                 &mv,
                 &skip,
                 &mp,
@@ -479,18 +492,42 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
     })
 }
 
-/// What the merge reads of each prepared view (with its scan's pose).
-pub fn merge_views<'a>(views: &'a [PreparedView], scans: &[Scan]) -> Vec<View<'a>> {
+/// What the merge reads of each prepared view (with its scan's pose and, when given, its
+/// cells).
+pub fn merge_views<'a>(
+    views: &'a [PreparedView],
+    maps: &'a [ViewMaps],
+    scans: &[Scan],
+    cells: Option<&'a [ViewCells]>,
+) -> Vec<View<'a>> {
     views
         .iter()
+        .zip(maps)
         .zip(scans)
-        .map(|(v, s)| View {
+        .enumerate()
+        .map(|(j, ((v, m), s))| View {
             proj: &v.sensor.projection,
-            gbuf: &v.gbuf,
-            ao: &v.ssao.ao,
-            border: &v.border,
+            maps: m,
             pose: s.pose,
+            cells: cells.and_then(|c| c.get(j)),
         })
+        .collect()
+}
+
+/// Each view's maps packed for the merge with parameters `prm`.
+pub fn view_maps(views: &[PreparedView], prm: &MergeParams) -> Vec<ViewMaps> {
+    views
+        .iter()
+        .map(|v| ViewMaps::new(&v.sensor.projection, &v.gbuf, &v.ssao.ao, &v.border, prm))
+        .collect()
+}
+
+/// Each view's cells, for leaving out points a view cannot match.
+pub fn view_cells(views: &[PreparedView], scans: &[Scan]) -> Vec<ViewCells> {
+    views
+        .par_iter()
+        .zip(scans)
+        .map(|(v, s)| ViewCells::new(&v.gbuf, s.pose))
         .collect()
 }
 

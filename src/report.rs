@@ -94,6 +94,9 @@ pub struct ScanReport {
     pub zero_merge_weight: u64,
     /// (point, view) pairs evaluated by the merge.
     pub point_views: u64,
+    /// (point, view) pairs left out before projecting: no stored point of the view was near
+    /// enough for eq. 7 (the merged value is the same as if they had been evaluated).
+    pub point_views_culled: u64,
     /// Smallest, mean and largest AO written.
     pub ao_min: f32,
     /// Mean AO written.

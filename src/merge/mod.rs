@@ -5,28 +5,84 @@
 //! applied to the f32 local points. Reads no files, rasterizes nothing.
 
 pub mod border;
+pub mod cull;
 pub mod weights;
 
 use crate::gbuffer::{GBuffer, EMPTY};
 use crate::projection::{floor_i64, Projection};
-use glam::{Affine3A, DMat4, Vec3, Vec3A};
+use cull::{PointCells, ViewCells};
+use glam::{Affine3A, DMat4, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
 use serde::Serialize;
-use weights::{corresponds, w_border, w_distance, w_normal};
+use weights::{faces, w_border, w_distance, w_normal, within};
 
 /// What the merge needs of one view (scan j).
 #[derive(Debug, Clone, Copy)]
 pub struct View<'a> {
     /// Scan j's projection.
     pub proj: &'a Projection,
-    /// Scan j's G-buffer.
-    pub gbuf: &'a GBuffer,
-    /// Scan j's per-pixel SSAO (after blur).
-    pub ao: &'a [f32],
-    /// Scan j's per-pixel distance (pixels) to the nearest depth discontinuity.
-    pub border: &'a [f32],
+    /// Scan j's per-pixel data, laid out for the merge.
+    pub maps: &'a ViewMaps,
     /// Scan j's local → world pose.
     pub pose: DMat4,
+    /// Scan j's cells for leaving out points it cannot match (`None`: every point is tried).
+    pub cells: Option<&'a ViewCells>,
+}
+
+/// One view's per-pixel data in the order the merge reads it: the distance test of eq. 7
+/// reads one 16-byte record (position, radius), a match one more (normal, `w_d·w_n`, SSAO,
+/// border distance), instead of seven separate maps. `w_d·w_n` depends only on the pixel, so
+/// it is computed once per view.
+#[derive(Debug, Clone, Default)]
+pub struct ViewMaps {
+    /// Map width.
+    pub width: usize,
+    /// Local position and radius; radius −∞ where the pixel is empty.
+    near: Vec<Vec4>,
+    /// Normal, `w_d·w_n`, SSAO and border distance.
+    rest: Vec<[f32; 6]>,
+}
+
+impl ViewMaps {
+    /// Packs a view's G-buffer, SSAO (after blur) and border distances (pixels) for `prm`.
+    pub fn new(
+        proj: &Projection,
+        g: &GBuffer,
+        ao: &[f32],
+        border: &[f32],
+        prm: &MergeParams,
+    ) -> ViewMaps {
+        let n = g.point.len();
+        let use_wd = proj.sensor_model() != crate::projection::SensorModel::Ortho;
+        let (near, rest) = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                if g.point[i] == EMPTY {
+                    return (Vec4::new(0.0, 0.0, 0.0, f32::NEG_INFINITY), [0.0; 6]);
+                }
+                let (p, nrm) = (g.position[i], g.normal[i]);
+                let wd = if use_wd {
+                    w_distance(g.depth[i], prm.dmin, prm.dmax)
+                } else {
+                    1.0
+                };
+                let wdn = wd * w_normal(nrm, proj.toward_sensor(p));
+                let a = ao.get(i).copied().unwrap_or(0.0);
+                let b = border.get(i).copied().unwrap_or(0.0);
+                (p.extend(g.radius[i]), [nrm.x, nrm.y, nrm.z, wdn, a, b])
+            })
+            .unzip();
+        ViewMaps {
+            width: g.width,
+            near,
+            rest,
+        }
+    }
+
+    /// Heap bytes held.
+    pub fn heap_bytes(&self) -> u64 {
+        (self.near.capacity() * 16 + self.rest.capacity() * 24) as u64
+    }
 }
 
 /// Merge parameters (after defaults). `d_min`/`d_max` apply to views with a sensor position
@@ -50,6 +106,9 @@ pub struct MergeStats {
     pub zero_weight: u64,
     /// (point, view) pairs evaluated.
     pub point_views: u64,
+    /// (point, view) pairs left out because no stored point of the view is near enough
+    /// ([`cull`]).
+    pub culled: u64,
     /// Samples accepted by eq. 7.
     pub samples_kept: u64,
 }
@@ -58,6 +117,7 @@ impl std::ops::AddAssign for MergeStats {
     fn add_assign(&mut self, o: Self) {
         self.zero_weight += o.zero_weight;
         self.point_views += o.point_views;
+        self.culled += o.culled;
         self.samples_kept += o.samples_kept;
     }
 }
@@ -119,6 +179,8 @@ pub struct Target<'a> {
     pub pose: DMat4,
     /// Its sensor model (the scanner position `b` of eq. 7).
     pub proj: &'a Projection,
+    /// Its points' cells (`None`: every point is tried against every view).
+    pub cells: Option<&'a PointCells>,
 }
 
 /// Adds view `j` to the sums of `t` (eq. 6–12 for one view), in parallel over points.
@@ -135,8 +197,14 @@ pub fn accumulate(
     let rel = Affine3A::from_mat4(relm.as_mat4());
     let b = (relm * t.proj.sensor_homogeneous().as_dvec4()).as_vec4();
     const CHUNK: usize = 8192;
-    let g = v.gbuf;
-    let use_wd = v.proj.sensor_model() != crate::projection::SensorModel::Ortho;
+    let m = v.maps;
+    // Cells of the target that may hold a partner in this view (all, for its own view).
+    let keep = match (t.cells, v.cells) {
+        (Some(pc), Some(vc)) if j != t.index && pc.len() == t.points.len() => {
+            vc.relevant(pc).map(|k| (pc, k))
+        }
+        _ => None,
+    };
     let st = acc
         .num
         .par_chunks_mut(CHUNK)
@@ -147,12 +215,18 @@ pub fn accumulate(
             let mut st = MergeStats::default();
             for k in 0..num.len() {
                 let pi = base + k;
+                if let Some((pc, keep)) = &keep {
+                    if !keep[pc.cell_of(pi)] {
+                        st.culled += 1;
+                        continue;
+                    }
+                }
                 let (q, cx, cy) = if j == t.index {
                     let px = t.own_pixel[pi];
                     if px == EMPTY {
                         continue;
                     }
-                    let w = g.width.max(1);
+                    let w = m.width.max(1);
                     (
                         t.points[pi],
                         (px as usize % w) as i64,
@@ -172,25 +246,20 @@ pub fn accumulate(
                         let Some(idx) = v.proj.pixel_at(cx + dx, cy + dy) else {
                             continue;
                         };
-                        if g.point[idx] == EMPTY {
+                        let (Some(near), Some(rest)) = (m.near.get(idx), m.rest.get(idx)) else {
                             continue;
-                        }
-                        let p_ij = g.position[idx];
-                        let n_ij = g.normal[idx];
-                        let rad_ij = g.radius[idx];
-                        if !corresponds(q, p_ij, n_ij, rad_i, rad_ij, b) {
-                            continue;
-                        }
-                        let wd = if use_wd {
-                            w_distance(g.depth[idx], prm.dmin, prm.dmax)
-                        } else {
-                            1.0
                         };
-                        let w = wd
-                            * w_normal(n_ij, v.proj.toward_sensor(p_ij))
-                            * w_border(v.border[idx], prm.border_px, rad_i, rad_ij);
+                        let (p_ij, rad_ij) = (near.truncate(), near.w);
+                        if rad_ij == f32::NEG_INFINITY || !within(q, p_ij, rad_i, rad_ij) {
+                            continue;
+                        }
+                        let n_ij = Vec3::new(rest[0], rest[1], rest[2]);
+                        if !faces(p_ij, n_ij, b) {
+                            continue;
+                        }
+                        let w = rest[3] * w_border(rest[5], prm.border_px, rad_i, rad_ij);
                         st.samples_kept += 1;
-                        num[k] += v.ao[idx] * w;
+                        num[k] += rest[4] * w;
                         den[k] += w;
                     }
                 }
@@ -207,7 +276,8 @@ pub fn accumulate(
 
 /// Merges scan `i` (its local `points`, `radii`, own SSAO `own` and own pixels) against every
 /// view not marked in `skip`: eq. 8 with the weights of eq. 9–12. Views are visited in index
-/// order, so the result equals adding them one by one with [`accumulate`].
+/// order, so the result equals adding them one by one with [`accumulate`]. `cells` (scan i's
+/// [`PointCells`]) lets views that carry [`ViewCells`] skip points they cannot match.
 #[allow(clippy::too_many_arguments)]
 pub fn merge_scan(
     i: usize,
@@ -215,6 +285,7 @@ pub fn merge_scan(
     radii: &[f32],
     own: &[f32],
     own_pixel: &[u32],
+    cells: Option<&PointCells>,
     views: &[View<'_>],
     skip: &[bool],
     prm: &MergeParams,
@@ -227,6 +298,7 @@ pub fn merge_scan(
         own_pixel,
         pose: views[i].pose,
         proj: views[i].proj,
+        cells,
     };
     let mut acc = Accum::new(points.len());
     for (j, v) in views.iter().enumerate() {
@@ -291,28 +363,28 @@ mod tests {
         // numbers, its pose moves them back onto scan 0's surface.
         let pose0 = DMat4::from_translation(DVec3::new(5.0, 0.0, 0.0));
         let pose1 = DMat4::from_translation(DVec3::new(5.0, 0.0, 0.0));
-        let views = [
-            View {
-                proj: &proj,
-                gbuf: &g,
-                ao: &ao0,
-                border: &b0,
-                pose: pose0,
-            },
-            View {
-                proj: &proj,
-                gbuf: &g,
-                ao: &ao1,
-                border: &b1,
-                pose: pose1,
-            },
-        ];
         let prm = MergeParams {
             neighbors: 1,
             dmin: 0.0,
             dmax: 4.0,
             border_px: 64.0,
         };
+        let maps1 = ViewMaps::new(&proj, &g, &ao0, &b0, &prm);
+        let maps2 = ViewMaps::new(&proj, &g, &ao1, &b1, &prm);
+        let views = [
+            View {
+                proj: &proj,
+                maps: &maps1,
+                pose: pose0,
+                cells: None,
+            },
+            View {
+                proj: &proj,
+                maps: &maps2,
+                pose: pose1,
+                cells: None,
+            },
+        ];
         let own = vec![0.2f32; 9];
         let (ao, st) = merge_scan(
             0,
@@ -320,6 +392,7 @@ mod tests {
             &rad,
             &own,
             &px,
+            None,
             &views,
             &[false, false],
             &prm,
@@ -344,21 +417,32 @@ mod tests {
         let g = rasterize(3, 3, &px, &[2.0; 9], &pts, &n, &[0.05; 9]);
         let ao = vec![0.3f32; 9];
         let b = vec![100.0f32; 9];
-        let v = [View {
-            proj: &proj,
-            gbuf: &g,
-            ao: &ao,
-            border: &b,
-            pose: DMat4::IDENTITY,
-        }];
         let prm = MergeParams {
             neighbors: 3,
             dmin: 0.0,
             dmax: 4.0,
             border_px: 64.0,
         };
+        let maps1 = ViewMaps::new(&proj, &g, &ao, &b, &prm);
+        let v = [View {
+            proj: &proj,
+            maps: &maps1,
+            pose: DMat4::IDENTITY,
+            cells: None,
+        }];
         let own = vec![0.7f32; 9];
-        let (out, st) = merge_scan(0, &pts, &[0.05; 9], &own, &px, &v, &[false], &prm, &|_| {});
+        let (out, st) = merge_scan(
+            0,
+            &pts,
+            &[0.05; 9],
+            &own,
+            &px,
+            None,
+            &v,
+            &[false],
+            &prm,
+            &|_| {},
+        );
         assert!(out.iter().all(|&a| a == 0.7));
         assert_eq!(st.zero_weight, 9);
     }
@@ -370,19 +454,19 @@ mod tests {
         let g = rasterize(3, 3, &px, &[2.0; 9], &pts, &[Vec3::Z; 9], &[0.06; 9]);
         let ao: Vec<f32> = (0..9).map(|i| i as f32 / 10.0).collect();
         let b = vec![1000.0f32; 9];
-        let v = [View {
-            proj: &proj,
-            gbuf: &g,
-            ao: &ao,
-            border: &b,
-            pose: DMat4::IDENTITY,
-        }];
         let prm = MergeParams {
             neighbors: 3,
             dmin: 0.0,
             dmax: 0.0,
             border_px: 64.0,
         };
+        let maps1 = ViewMaps::new(&proj, &g, &ao, &b, &prm);
+        let v = [View {
+            proj: &proj,
+            maps: &maps1,
+            pose: DMat4::IDENTITY,
+            cells: None,
+        }];
         // Centre point: with t = 0.06, neighbours at 0.1 m (edge) pass 2t = 0.12, diagonal
         // ones at 0.1414 do not → average of pixels 1,3,4,5,7 = (0.1+0.3+0.4+0.5+0.7)/5 = 0.4.
         let (out, _) = merge_scan(
@@ -391,6 +475,7 @@ mod tests {
             &[0.06],
             &[0.0],
             &[4],
+            None,
             &v,
             &[false],
             &prm,

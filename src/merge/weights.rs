@@ -36,10 +36,19 @@ pub fn w_border(db: f32, tp: f32, rad_i: f32, rad_ij: f32) -> f32 {
 /// direction `b.xyz`).
 #[inline]
 pub fn corresponds(q: Vec3, p_ij: Vec3, n_ij: Vec3, rad_i: f32, rad_ij: f32, b: Vec4) -> bool {
+    within(q, p_ij, rad_i, rad_ij) && faces(p_ij, n_ij, b)
+}
+
+/// The distance half of eq. 7: `‖q − p_ij‖ < 2·max(rad_i, rad_ij)`.
+#[inline]
+pub fn within(q: Vec3, p_ij: Vec3, rad_i: f32, rad_ij: f32) -> bool {
     let t = rad_i.max(rad_ij);
-    if q.distance_squared(p_ij) >= 4.0 * t * t {
-        return false;
-    }
+    !(q.distance_squared(p_ij) >= 4.0 * t * t)
+}
+
+/// The visibility half of eq. 7: `p_ij` (normal `n_ij`) faces `b`, a homogeneous point.
+#[inline]
+pub fn faces(p_ij: Vec3, n_ij: Vec3, b: Vec4) -> bool {
     let to_b = if b.w != 0.0 {
         b.truncate() / b.w - p_ij
     } else {

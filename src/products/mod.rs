@@ -34,7 +34,8 @@ pub use manifest::{Check, Entry, InputRecord, Manifest, ProductFile, ProductFile
 use crate::error::{Error, Result};
 use crate::gbuffer::GBuffer;
 use crate::io::atomic::write_atomic_with;
-use crate::merge::View;
+use crate::merge::cull::ViewCells;
+use crate::merge::{MergeParams, View, ViewMaps};
 use crate::pipeline::PreparedView;
 use crate::projection::{Projection, Warp};
 use crate::sensor::SensorSetup;
@@ -367,18 +368,47 @@ pub struct MergeMaps {
     pub border: Vec<f32>,
     /// Number of points of the scan.
     pub points: u64,
+    /// Its cells and packed maps, once placed by its pose ([`MergeMaps::place`]).
+    pub placed: Option<(ViewCells, ViewMaps)>,
 }
 
 impl MergeMaps {
-    /// The merge's view of these maps, with the scan's local → world pose.
-    pub fn view(&self, pose: DMat4) -> View<'_> {
-        View {
+    /// Computes the view's cells at `pose` and packs its maps for a merge with `prm`; the
+    /// G-buffer's position, normal, radius and depth and the border map are then freed (the
+    /// packed maps hold what the merge reads of them).
+    pub fn place(&mut self, pose: DMat4, prm: &MergeParams) {
+        let cells = ViewCells::new(&self.gbuf, pose);
+        let maps = ViewMaps::new(&self.projection, &self.gbuf, &self.ao, &self.border, prm);
+        let g = &mut self.gbuf;
+        (g.position, g.normal, g.radius, g.depth) = Default::default();
+        self.border = Vec::new();
+        self.placed = Some((cells, maps));
+    }
+
+    /// Heap bytes held (maps, cells and packed maps).
+    pub fn heap_bytes(&self) -> u64 {
+        let g = &self.gbuf;
+        let maps = 4 * (g.point.capacity() + g.depth.capacity() + g.radius.capacity())
+            + 12 * (g.position.capacity() + g.normal.capacity())
+            + 4 * (self.ao.capacity() + self.border.capacity())
+            + self.no_sample.capacity();
+        maps as u64
+            + self
+                .placed
+                .as_ref()
+                .map_or(0, |(c, m)| c.heap_bytes() + m.heap_bytes())
+    }
+
+    /// The merge's view of these maps with the scan's local → world pose (`None` until
+    /// [`MergeMaps::place`]d).
+    pub fn view(&self, pose: DMat4) -> Option<View<'_>> {
+        let (cells, maps) = self.placed.as_ref()?;
+        Some(View {
             proj: &self.projection,
-            gbuf: &self.gbuf,
-            ao: &self.ao,
-            border: &self.border,
+            maps,
             pose,
-        }
+            cells: Some(cells),
+        })
     }
 }
 
@@ -399,6 +429,7 @@ pub fn load_maps_for_merge(dir: &Path, key: &str) -> Result<MergeMaps> {
         no_sample: maps.no_sample.unwrap_or_else(|| vec![false; n]),
         border: maps.border,
         points: meta.points,
+        placed: None,
     })
 }
 
