@@ -17,6 +17,7 @@
 //! the reverse: merged values are identical with and without it.
 
 use crate::gbuffer::{GBuffer, EMPTY};
+use crate::scan::occupancy::{world_cell, world_cells};
 use glam::{DMat4, Vec3};
 use rayon::prelude::*;
 use std::collections::HashSet;
@@ -131,29 +132,9 @@ impl Cells {
         };
         let base = base_level(radii, diag);
         let sigma = ROUNDING_PER_EXTENT * 3f64.sqrt() * f64::from(ext);
+        let cells = world_cells(points, pose, base);
         let inv = (-(base as f64)).exp2();
-        let cell = |p: &Vec3| {
-            let w = pose.transform_point3(p.as_dvec3()) * inv;
-            [w.x.floor() as i64, w.y.floor() as i64, w.z.floor() as i64]
-        };
         const CHUNK: usize = 8192;
-        let mut cells: Vec<[i64; 3]> = points
-            .par_chunks(CHUNK)
-            .flat_map_iter(|c| {
-                let mut out: Vec<[i64; 3]> = Vec::new();
-                for p in c {
-                    let k = cell(p);
-                    if out.last() != Some(&k) {
-                        out.push(k);
-                    }
-                }
-                out.sort_unstable();
-                out.dedup();
-                out
-            })
-            .collect();
-        cells.par_sort_unstable();
-        cells.dedup();
         // Each point's cell: consecutive points mostly share one, so the last is tried first.
         let mut of = vec![0u32; n];
         of.par_chunks_mut(CHUNK)
@@ -161,7 +142,7 @@ impl Cells {
             .for_each(|(o, c)| {
                 let mut last = ([i64::MIN; 3], 0u32);
                 for (o, p) in o.iter_mut().zip(c) {
-                    let k = cell(p);
+                    let k = world_cell(*p, &pose, inv);
                     if k != last.0 {
                         last = (k, cells.binary_search(&k).unwrap_or(0) as u32);
                     }
@@ -459,18 +440,8 @@ fn grow_into(set: &mut KeySet, k: [i64; 3], n: i64) {
 /// The keys of `cells` and of their 26 neighbours.
 fn grown(cells: &[[i64; 3]]) -> KeySet {
     let mut s = KeySet::with_capacity_and_hasher(cells.len() * 8, Default::default());
-    for k in cells {
-        for dx in -1i64..=1 {
-            for dy in -1i64..=1 {
-                for dz in -1i64..=1 {
-                    s.insert(key([
-                        k[0].wrapping_add(dx),
-                        k[1].wrapping_add(dy),
-                        k[2].wrapping_add(dz),
-                    ]));
-                }
-            }
-        }
+    for &k in cells {
+        grow_into(&mut s, k, 1);
     }
     s
 }

@@ -36,32 +36,7 @@ impl Occupancy {
         } else {
             0
         };
-        let inv = (-level as f64).exp2();
-        let pose = s.pose;
-        let cell = |p: &glam::Vec3| {
-            let w = pose.transform_point3(p.as_dvec3()) * inv;
-            [w.x.floor() as i64, w.y.floor() as i64, w.z.floor() as i64]
-        };
-        // Neighbouring points mostly share a cell: dropping repeats within a chunk keeps the
-        // sort small.
-        let mut cells: Vec<[i64; 3]> = s
-            .points
-            .par_chunks(4096)
-            .flat_map_iter(|c| {
-                let mut out: Vec<[i64; 3]> = Vec::new();
-                for p in c {
-                    let k = cell(p);
-                    if out.last() != Some(&k) {
-                        out.push(k);
-                    }
-                }
-                out.sort_unstable();
-                out.dedup();
-                out
-            })
-            .collect();
-        cells.par_sort_unstable();
-        cells.dedup();
+        let cells = world_cells(&s.points, s.pose, level);
         Occupancy { level, cells }
     }
 
@@ -78,6 +53,38 @@ impl Occupancy {
         out.dedup();
         out
     }
+}
+
+/// The world cell of a local point placed by `pose`, for cells of side `1/inv` metres.
+#[inline]
+pub fn world_cell(p: glam::Vec3, pose: &glam::DMat4, inv: f64) -> [i64; 3] {
+    let w = pose.transform_point3(p.as_dvec3()) * inv;
+    [w.x.floor() as i64, w.y.floor() as i64, w.z.floor() as i64]
+}
+
+/// The distinct world cells of `points` placed by `pose` at `level`, sorted.
+pub fn world_cells(points: &[glam::Vec3], pose: glam::DMat4, level: i32) -> Vec<[i64; 3]> {
+    let inv = (-level as f64).exp2();
+    // Neighbouring points mostly share a cell: dropping repeats within a chunk keeps the
+    // sort small.
+    let mut cells: Vec<[i64; 3]> = points
+        .par_chunks(4096)
+        .flat_map_iter(|c| {
+            let mut out: Vec<[i64; 3]> = Vec::new();
+            for p in c {
+                let k = world_cell(*p, &pose, inv);
+                if out.last() != Some(&k) {
+                    out.push(k);
+                }
+            }
+            out.sort_unstable();
+            out.dedup();
+            out
+        })
+        .collect();
+    cells.par_sort_unstable();
+    cells.dedup();
+    cells
 }
 
 /// Pair tests of a set of scans for one reach: whether some point of scan `i` may lie within
