@@ -127,6 +127,7 @@ where
         // Candidates packed as (squared distance bits << 32) | index: squared distances are
         // non-negative, so their bits order like the values and selection compares integers.
         let mut cand = [0u64; ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize];
+        let mut scratch: Scratch = [[0; SCRATCH]; 2];
         for (o, r) in rad.iter_mut().enumerate() {
             let i = ci * CHUNK + o;
             let p = points[i];
@@ -154,7 +155,7 @@ where
             let kk = k.min(m).max(1);
             let c = &mut cand[..m];
             if m > 0 {
-                select(c, kk - 1);
+                select(c, kk - 1, &mut scratch);
             }
             let dk = c
                 .get(kk - 1)
@@ -165,7 +166,7 @@ where
                 let kn = K_NORMAL.min(m);
                 let c = &mut c[..kk.min(m)];
                 if kn > 0 && kn < c.len() {
-                    select(c, kn - 1);
+                    select(c, kn - 1, &mut scratch);
                 }
                 nrm[o] = pca_normal(
                     c[..kn].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
@@ -178,17 +179,33 @@ where
     (need_normals.then_some(normals), radii)
 }
 
+/// Room for the values [`select`] partitions: a whole `GRID_RMAX` window.
+const SCRATCH: usize = 256;
+
+const _: () = assert!(((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize <= SCRATCH);
+
+/// Two partition buffers for [`select`], kept across calls.
+type Scratch = [[u64; SCRATCH]; 2];
+
 /// Reorders `v` so that `v[k]` is the value a sort would put there, with no larger value
-/// before it and no smaller after it (quickselect, insertion sort below 16 values).
+/// before it and no smaller after it (quickselect).
 ///
 /// Pivots are medians of three values at pseudo-random places: a grid window lists its
 /// cells row by row, so the first, middle and last cells are the two farthest corners and the
-/// centre, and the usual choice of those three gives a pivot near the largest value.
-fn select(v: &mut [u64], k: usize) {
+/// centre, and the usual choice of those three gives a pivot near the largest value. Each
+/// value is copied to both buffers and only the count of its side advances: which side a
+/// distance falls on is unpredictable, and a mispredicted branch per value cost more than the
+/// copies (about 100 mispredictions per point for the two selections of a 9×9 window).
+fn select(v: &mut [u64], k: usize, scratch: &mut Scratch) {
     let (mut lo, mut hi) = (0usize, v.len());
     if k >= hi {
         return;
     }
+    if hi > SCRATCH {
+        v.select_nth_unstable(k);
+        return;
+    }
+    let [below, above] = scratch;
     let mut state = 0x2545_F491_4F6C_DD1Du64 ^ v.len() as u64;
     let mut pick = |lo: usize, len: usize| {
         state ^= state << 13;
@@ -196,40 +213,34 @@ fn select(v: &mut [u64], k: usize) {
         state ^= state << 17;
         lo + (((state >> 32) * len as u64) >> 32) as usize
     };
-    while hi - lo > 16 {
+    while hi - lo > 2 {
         let len = hi - lo;
         let (a, b, c) = (v[pick(lo, len)], v[pick(lo, len)], v[pick(lo, len)]);
         let pivot = a.max(b).min(a.min(b).max(c));
-        // Hoare partition: afterwards v[lo..=j] <= pivot <= v[j+1..hi].
-        let (mut i, mut j) = (lo, hi - 1);
-        loop {
-            while v[i] < pivot {
-                i += 1;
-            }
-            while v[j] > pivot {
-                j -= 1;
-            }
-            if i >= j {
-                break;
-            }
-            v.swap(i, j);
-            i += 1;
-            j -= 1;
+        let (mut nb, mut na) = (0usize, 0usize);
+        for &x in &v[lo..hi] {
+            // The modulo never wraps (at most SCRATCH values); it spares a bounds check.
+            below[nb % SCRATCH] = x;
+            above[na % SCRATCH] = x;
+            nb += usize::from(x < pivot);
+            na += usize::from(x > pivot);
         }
-        if k <= j {
-            hi = j + 1;
+        // v[lo..mid] < pivot = v[mid..top] < v[top..hi]: the pivot is there, so each round
+        // leaves at least one value out.
+        let (mid, top) = (lo + nb, hi - na);
+        v[lo..mid].copy_from_slice(&below[..nb]);
+        v[mid..top].fill(pivot);
+        v[top..hi].copy_from_slice(&above[..na]);
+        if k < mid {
+            hi = mid;
+        } else if k < top {
+            return;
         } else {
-            lo = j + 1;
+            lo = top;
         }
     }
-    for i in lo + 1..hi {
-        let x = v[i];
-        let mut j = i;
-        while j > lo && v[j - 1] > x {
-            v[j] = v[j - 1];
-            j -= 1;
-        }
-        v[j] = x;
+    if hi - lo == 2 && v[lo] > v[lo + 1] {
+        v.swap(lo, lo + 1);
     }
 }
 
@@ -323,7 +334,7 @@ mod tests {
     #[test]
     fn select_agrees_with_a_sort() {
         let mut state = 0x9E37_79B9_7F4A_7C15u64;
-        for n in 1..200usize {
+        for n in 1..300usize {
             for rep in 0..4 {
                 let mut v: Vec<u64> = (0..n)
                     .map(|_| {
@@ -341,7 +352,7 @@ mod tests {
                 let mut sorted = v.clone();
                 sorted.sort_unstable();
                 let k = (state as usize) % n;
-                select(&mut v, k);
+                select(&mut v, k, &mut [[0; SCRATCH]; 2]);
                 assert_eq!(v[k], sorted[k], "n {n} k {k}");
                 assert!(v[..k].iter().all(|&x| x <= v[k]));
                 assert!(v[k + 1..].iter().all(|&x| x >= v[k]));

@@ -31,10 +31,17 @@ pub fn gaussian5(ao: &[f32], g: &GBuffer, wrap_x: bool) -> Vec<f32> {
                     }
                     for (dx, wx) in (-2..=2).zip(W5) {
                         let mut xx = x + dx;
-                        if wrap_x {
-                            xx = xx.rem_euclid(w);
-                        } else if xx < 0 || xx >= w {
-                            continue;
+                        if xx < 0 || xx >= w {
+                            if !wrap_x {
+                                continue;
+                            }
+                            // Taps reach 2 pixels past an edge: a wrap or two, no division.
+                            while xx < 0 {
+                                xx += w;
+                            }
+                            while xx >= w {
+                                xx -= w;
+                            }
                         }
                         let i = (yy * w + xx) as usize;
                         if g.is_valid(i) {
@@ -93,6 +100,33 @@ mod tests {
                                               // corner pixel (0,0): sees the impulse at (+2,+2) with weight 1·1 over its 3×3 valid
                                               // window sum (6+4+1)² = 121 → 256/121
         assert!((b[0] - 256.0 / 121.0).abs() < 1e-4);
+    }
+
+    /// Wrapping by adding the width equals the modulo on every width, down to maps narrower
+    /// than the kernel (where a tap wraps twice or lands on its own pixel).
+    #[test]
+    fn wrap_equals_the_modulo_on_narrow_maps() {
+        for w in 1..8usize {
+            let h = 4usize;
+            let g = gb(w, h, |i| i % 5 != 3);
+            let ao: Vec<f32> = (0..w * h).map(|i| (i * 7 % 11) as f32 / 10.0).collect();
+            let b = gaussian5(&ao, &g, true);
+            for c in (0..w * h).filter(|&c| g.is_valid(c)) {
+                let (x, y) = ((c % w) as i64, (c / w) as i64);
+                let (mut s, mut ws) = (0.0f32, 0.0f32);
+                for (dy, wy) in (-2..=2).zip(W5) {
+                    for (dx, wx) in (-2..=2).zip(W5) {
+                        let yy = y + dy;
+                        let i = (yy * w as i64 + (x + dx).rem_euclid(w as i64)) as usize;
+                        if (0..h as i64).contains(&yy) && g.is_valid(i) {
+                            s += wy * wx * ao[i];
+                            ws += wy * wx;
+                        }
+                    }
+                }
+                assert_eq!(b[c], s / ws, "width {w}, pixel {c}");
+            }
+        }
     }
 
     #[test]

@@ -187,6 +187,8 @@ struct Ctx<'a> {
     /// `t_max²`, or 0 when `t_max ≤ 0` (every sample then ignored: `ρ ≡ 1`).
     tmax2: f32,
     directions: u32,
+    /// `(sin, cos)` of the angle between consecutive directions.
+    rot: (f32, f32),
     steps: u32,
     seed: u64,
     /// Map size as integers and floats.
@@ -212,6 +214,7 @@ impl<'a> Ctx<'a> {
             inv_tmax: 1.0 / prm.tmax,
             tmax2,
             directions: prm.directions.max(1),
+            rot: (TAU / prm.directions.max(1) as f32).sin_cos(),
             steps: prm.steps.max(1),
             seed: prm.seed,
             w: g.width as i32,
@@ -289,7 +292,7 @@ impl<'a> Ctx<'a> {
         let (fox, foy) = (ox - fast_floor(ox) as f32, oy - fast_floor(oy) as f32);
         let mut rng = Rng::new(self.seed, c as u64);
         let (mut sn, mut cs) = (TAU * rng.next_f32()).sin_cos();
-        let (rot_s, rot_c) = (TAU / self.directions as f32).sin_cos();
+        let (rot_s, rot_c) = self.rot;
         let (mut sum_s, mut sum_t, mut any) = (0.0f32, 0.0f32, false);
         for _ in 0..self.directions {
             let jitter = rng.next_f32();
