@@ -318,6 +318,16 @@ mod tests {
     use crate::projection::{Model, Projection};
     use glam::{DMat4, DVec3};
 
+    /// A view of `maps` without cells (every point tried).
+    fn view<'a>(proj: &'a Projection, maps: &'a ViewMaps, pose: DMat4) -> View<'a> {
+        View {
+            proj,
+            maps,
+            pose,
+            cells: None,
+        }
+    }
+
     /// An orthographic view of a 3×3 pixel patch (10 cm pixels) of the plane z = 0, sensor above.
     fn patch() -> (Projection, Vec<Vec3>) {
         let proj = Projection::new(
@@ -371,20 +381,7 @@ mod tests {
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao0, &b0, &prm);
         let maps2 = ViewMaps::new(&proj, &g, &ao1, &b1, &prm);
-        let views = [
-            View {
-                proj: &proj,
-                maps: &maps1,
-                pose: pose0,
-                cells: None,
-            },
-            View {
-                proj: &proj,
-                maps: &maps2,
-                pose: pose1,
-                cells: None,
-            },
-        ];
+        let views = [view(&proj, &maps1, pose0), view(&proj, &maps2, pose1)];
         let own = vec![0.2f32; 9];
         let (ao, st) = merge_scan(
             0,
@@ -424,12 +421,7 @@ mod tests {
             border_px: 64.0,
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao, &b, &prm);
-        let v = [View {
-            proj: &proj,
-            maps: &maps1,
-            pose: DMat4::IDENTITY,
-            cells: None,
-        }];
+        let v = [view(&proj, &maps1, DMat4::IDENTITY)];
         let own = vec![0.7f32; 9];
         let (out, st) = merge_scan(
             0,
@@ -461,12 +453,7 @@ mod tests {
             border_px: 64.0,
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao, &b, &prm);
-        let v = [View {
-            proj: &proj,
-            maps: &maps1,
-            pose: DMat4::IDENTITY,
-            cells: None,
-        }];
+        let v = [view(&proj, &maps1, DMat4::IDENTITY)];
         // Centre point: with t = 0.06, neighbours at 0.1 m (edge) pass 2t = 0.12, diagonal
         // ones at 0.1414 do not → average of pixels 1,3,4,5,7 = (0.1+0.3+0.4+0.5+0.7)/5 = 0.4.
         let (out, _) = merge_scan(
