@@ -1,5 +1,5 @@
 //! Horizon SSAO alone on one 1440×720 equirect station of the synthetic room (best of five),
-//! for tuning the estimator: `cargo bench --bench ssao`.
+//! for tuning the estimator: `cargo bench --bench ssao` (`-- suite` for a suite station).
 
 use mvao::pipeline::prepare_view;
 use mvao::projection::SensorModel;
@@ -9,8 +9,14 @@ use mvao::synth::{scan_scene, station_layout, SceneKind};
 use std::time::Instant;
 
 fn main() {
-    let st = station_layout(SceneKind::Room, SensorModel::Equirect, 1, 1440, 720)[0];
-    let mut s = scan_scene(&SceneKind::Room.scene(), &st, 0.002, 0, "s0");
+    // `-- suite`: the sixth of eight stations in the two-room suite instead.
+    let (kind, count, k) = if std::env::args().any(|a| a == "suite") {
+        (SceneKind::Suite { rooms: 2 }, 8, 5)
+    } else {
+        (SceneKind::Room, 1, 0)
+    };
+    let st = station_layout(kind, SensorModel::Equirect, count, 1440, 720)[k];
+    let mut s = scan_scene(&kind.scene(), &st, 0.002, 0, "s0");
     s.pose = st.pose();
     let prm = SsaoParams {
         estimator: Estimator::Horizon,

@@ -48,6 +48,7 @@ pub mod info;
 pub mod io;
 pub mod merge;
 pub mod outofcore;
+pub mod pagebuf;
 pub mod pipeline;
 pub mod plot;
 pub mod products;

@@ -162,6 +162,7 @@ pub fn keep_freed_memory() {
         libc::mallopt(libc::M_MMAP_MAX, 0);
         libc::mallopt(libc::M_TRIM_THRESHOLD, i32::MAX);
     }
+    crate::pagebuf::keep_freed();
 }
 
 /// Total memory of the machine (bytes), where the system tells.

@@ -91,8 +91,9 @@
 use super::rng::Rng;
 use super::{AoMap, SsaoParams};
 use crate::gbuffer::{GBuffer, EMPTY};
+use crate::pagebuf::PageBuf;
 use crate::projection::{fast_atan2, Projection};
-use glam::Vec3A;
+use glam::{BVec4A, Vec3A, Vec4};
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
 
@@ -128,19 +129,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
             no_sample: flag,
         };
     }
-    // One 16-byte load per sample: the position, NaN where the pixel is empty.
-    let pts: Vec<Vec3A> = g
-        .position
-        .par_iter()
-        .zip(g.point.par_iter())
-        .map(|(&p, &i)| {
-            if i == EMPTY {
-                Vec3A::NAN
-            } else {
-                Vec3A::from(p)
-            }
-        })
-        .collect();
+    let pts = positions(g);
     let ctx = Ctx::new(g, &pts, proj, prm);
     // Bands of BAND rows in parallel, each walked in TILE-wide column blocks: neighbouring
     // pixels read the same neighbourhood, so a block's working set stays in cache even for
@@ -173,6 +162,46 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
         ao,
         no_sample: flag,
     }
+}
+
+/// One 16-byte load per sample: the G-buffer's positions, NaN where the pixel is empty.
+fn positions(g: &GBuffer) -> PageBuf<Vec3A> {
+    let mut pts = PageBuf::zeroed(g.position.len());
+    pts.par_iter_mut()
+        .zip(g.position.par_iter().zip(g.point.par_iter()))
+        .for_each(|(q, (&p, &i))| {
+            *q = if i == EMPTY {
+                Vec3A::NAN
+            } else {
+                Vec3A::from(p)
+            }
+        });
+    pts
+}
+
+/// Half-planes marched together, one per SIMD lane.
+const LANES: usize = 4;
+
+/// Up to [`LANES`] half-plane marches of one pixel: lane `l < n` starts at `q[l]` (48.16 fixed
+/// point), moves by `step[l]` and takes `count[l]` samples into `hz[l]`.
+#[derive(Debug, Default)]
+struct Group {
+    n: usize,
+    hz: [Horizon; LANES],
+    q: [(i64, i64); LANES],
+    step: [(i64, i64); LANES],
+    count: [u32; LANES],
+}
+
+/// What one direction adds to `Σ T` and `Σ S`.
+#[derive(Debug, Clone, Copy)]
+enum Term {
+    /// No direction of the half-plane is above the tangent plane: nothing.
+    None,
+    /// Its open value `T` to both (nothing to march).
+    Open(f32),
+    /// `T`, and `S` from the march in lane `l`.
+    March(f32, usize),
 }
 
 /// Everything a pixel evaluation needs, fixed for the whole map.
@@ -245,6 +274,19 @@ impl<'a> Ctx<'a> {
 
     /// Obscurance of valid pixel `c = (x, y)`; `None` when it must be flagged.
     fn pixel(&self, x: usize, y: usize, c: usize) -> Option<f32> {
+        self.pixel_with(x, y, c, Self::march_lanes)
+    }
+
+    /// [`Ctx::pixel`] with the half-planes of each group of [`LANES`] directions marched by
+    /// `march` (the SIMD lanes in production, one at a time in the tests' reference).
+    #[inline(always)]
+    fn pixel_with(
+        &self,
+        x: usize,
+        y: usize,
+        c: usize,
+        march: impl Fn(&Self, &mut Group, usize, Vec3A, Vec3A) -> bool,
+    ) -> Option<f32> {
         let g = self.g;
         let proj = self.proj;
         let p = g.position[c];
@@ -294,75 +336,203 @@ impl<'a> Ctx<'a> {
         let (mut sn, mut cs) = (TAU * rng.next_f32()).sin_cos();
         let (rot_s, rot_c) = self.rot;
         let (mut sum_s, mut sum_t, mut any) = (0.0f32, 0.0f32, false);
-        for _ in 0..self.directions {
-            let jitter = rng.next_f32();
-            let (s, co) = (sn, cs);
-            (sn, cs) = (s * rot_c + co * rot_s, co * rot_c - s * rot_s);
-            let u = e1 * co + e2 * s;
-            let Some(slice) = Slice::new(a, na.dot(u)) else {
-                continue;
-            };
-            let open = slice.open();
-            sum_t += open;
-            let dir = match (d1, d2) {
-                (Some(d1), Some(d2)) if reach_ok => {
-                    unit(co * d1.0 + s * d2.0, co * d1.1 + s * d2.1)
-                }
-                _ => None,
-            };
-            let Some((dx, dy)) = dir else {
-                sum_s += open;
-                continue;
-            };
-            // Length of the march: the t_max ellipse along (dx, dy), clipped to the map, from
-            // where the line leaves p's own pixel.
-            let (idx, idy) = (1.0 / dx, 1.0 / dy);
-            let reach = (1.0 / (dx * dx * irx2 + dy * dy * iry2).sqrt())
-                .min(exit(oy, idy, self.hf))
-                .min(self.wf + self.hf);
-            let reach = if self.wrap {
-                reach
-            } else {
-                reach.min(exit(ox, idx, self.wf))
-            };
-            let t0 = exit(fox, idx, 1.0).min(exit(foy, idy, 1.0));
-            let span = reach - t0;
-            if !(span > 0.0) {
-                sum_s += open;
-                continue;
-            }
-            let count = (span as u32).clamp(1, self.steps);
-            let step = span / count as f32;
-            // In-plane coordinates as linear forms of v = s − p: along the tangent line
-            // (a u − b V)/R as measured; across it the height n·v above the tangent plane
-            // scaled to the plane (÷ R), so that a point of the tangent plane stays on it:
-            // x = v·(a² u − ab V + b n)/R², y = v·(a n − ab u + b² V)/R².
-            let (sa, sb) = (slice.a, slice.b);
-            let ir2 = slice.inv_r * slice.inv_r;
-            let fx = (u * (sa * sa) - va * (sa * sb) + na * sb) * ir2;
-            let fy = (na * sa - u * (sa * sb) + va * (sb * sb)) * ir2;
-            let mut hz = Horizon::new(slice, fx, fy);
-            // March in 48.16 fixed point: floor = arithmetic shift, no float → int per sample.
-            let t1 = t0 + jitter * step;
-            let (mut qx, mut qy) = (fixed(ox + dx * t1), fixed(oy + dy * t1));
-            let (sx, sy) = (fixed(dx * step), fixed(dy * step));
-            for _ in 0..count {
-                let (mut ix, iy) = (qx >> 16, qy >> 16);
-                (qx, qy) = (qx + sx, qy + sy);
-                // The line leaves the map once (y is monotone; x wraps or is clipped).
-                if iy as u64 >= self.h as u64 {
-                    break;
-                }
-                if ix as u64 >= self.w as u64 {
-                    if !self.wrap {
-                        break;
+        let mut left = self.directions;
+        while left > 0 {
+            let mut grp = Group::default();
+            // What each direction of the group adds to Σ T and Σ S: its open value, and
+            // either that again (nothing to march) or its lane's march.
+            let mut terms = [Term::None; LANES];
+            for term in terms.iter_mut().take(left.min(LANES as u32) as usize) {
+                let jitter = rng.next_f32();
+                let (s, co) = (sn, cs);
+                (sn, cs) = (s * rot_c + co * rot_s, co * rot_c - s * rot_s);
+                let u = e1 * co + e2 * s;
+                let Some(slice) = Slice::new(a, na.dot(u)) else {
+                    continue;
+                };
+                let open = slice.open();
+                *term = Term::Open(open);
+                let dir = match (d1, d2) {
+                    (Some(d1), Some(d2)) if reach_ok => {
+                        unit(co * d1.0 + s * d2.0, co * d1.1 + s * d2.1)
                     }
-                    ix = ix.rem_euclid(self.w as i64);
+                    _ => None,
+                };
+                let Some((dx, dy)) = dir else {
+                    continue;
+                };
+                // Length of the march: the t_max ellipse along (dx, dy), clipped to the map,
+                // from where the line leaves p's own pixel.
+                let (idx, idy) = (1.0 / dx, 1.0 / dy);
+                let reach = (1.0 / (dx * dx * irx2 + dy * dy * iry2).sqrt())
+                    .min(exit(oy, idy, self.hf))
+                    .min(self.wf + self.hf);
+                let reach = if self.wrap {
+                    reach
+                } else {
+                    reach.min(exit(ox, idx, self.wf))
+                };
+                let t0 = exit(fox, idx, 1.0).min(exit(foy, idy, 1.0));
+                let span = reach - t0;
+                if !(span > 0.0) {
+                    continue;
                 }
-                let i = iy as usize * self.w as usize + ix as usize;
-                let Some(&q) = self.pts.get(i) else {
+                let count = (span as u32).clamp(1, self.steps);
+                let step = span / count as f32;
+                // In-plane coordinates as linear forms of v = s − p: along the tangent line
+                // (a u − b V)/R as measured; across it the height n·v above the tangent plane
+                // scaled to the plane (÷ R), so that a point of the tangent plane stays on it:
+                // x = v·(a² u − ab V + b n)/R², y = v·(a n − ab u + b² V)/R².
+                let (sa, sb) = (slice.a, slice.b);
+                let ir2 = slice.inv_r * slice.inv_r;
+                let fx = (u * (sa * sa) - va * (sa * sb) + na * sb) * ir2;
+                let fy = (na * sa - u * (sa * sb) + va * (sb * sb)) * ir2;
+                // March in 48.16 fixed point: floor = arithmetic shift, no float → int per
+                // sample.
+                let t1 = t0 + jitter * step;
+                let l = grp.n;
+                grp.hz[l] = Horizon::new(slice, fx, fy);
+                grp.q[l] = (fixed(ox + dx * t1), fixed(oy + dy * t1));
+                grp.step[l] = (fixed(dx * step), fixed(dy * step));
+                grp.count[l] = count;
+                grp.n += 1;
+                *term = Term::March(open, l);
+            }
+            left -= left.min(LANES as u32);
+            if grp.n > 0 {
+                any |= march(self, &mut grp, c, pa, na);
+            }
+            for term in terms {
+                match term {
+                    Term::None => {}
+                    Term::Open(open) => {
+                        sum_t += open;
+                        sum_s += open;
+                    }
+                    Term::March(open, l) => {
+                        sum_t += open;
+                        sum_s += grp.hz[l].value();
+                    }
+                }
+            }
+        }
+        if !any {
+            return None;
+        }
+        let a = if sum_t > 0.0 { sum_s / sum_t } else { 1.0 };
+        if a.is_finite() {
+            Some(a.clamp(0.0, 1.0))
+        } else {
+            None
+        }
+    }
+
+    /// The map index of the next sample of lane `l` (advancing it), `None` once the line has
+    /// left the map (it leaves once: y is monotone, x wraps or is clipped).
+    #[inline(always)]
+    fn next_index(&self, grp: &mut Group, l: usize) -> Option<usize> {
+        let (qx, qy) = grp.q[l];
+        let (mut ix, iy) = (qx >> 16, qy >> 16);
+        grp.q[l] = (qx + grp.step[l].0, qy + grp.step[l].1);
+        if iy as u64 >= self.h as u64 {
+            return None;
+        }
+        if ix as u64 >= self.w as u64 {
+            if !self.wrap {
+                return None;
+            }
+            ix = ix.rem_euclid(self.w as i64);
+        }
+        let i = iy as usize * self.w as usize + ix as usize;
+        (i < self.pts.len()).then_some(i)
+    }
+
+    /// Marches the group's half-planes in lock step, one SIMD lane each: the sample tests run
+    /// on all lanes at once and only a lane whose sample raises its horizon takes the scalar
+    /// [`Horizon::raise`]. Every lane sees the same samples, in the same order, with the same
+    /// arithmetic as [`Ctx::march_one`]. Returns whether any sample landed on a neighbouring
+    /// valid pixel.
+    fn march_lanes(&self, grp: &mut Group, c: usize, pa: Vec3A, na: Vec3A) -> bool {
+        let lanes = |f: &dyn Fn(&Horizon) -> f32| {
+            Vec4::new(f(&grp.hz[0]), f(&grp.hz[1]), f(&grp.hz[2]), f(&grp.hz[3]))
+        };
+        let (fxx, fxy, fxz) = (lanes(&|h| h.fx.x), lanes(&|h| h.fx.y), lanes(&|h| h.fx.z));
+        let (fyx, fyy, fyz) = (lanes(&|h| h.fy.x), lanes(&|h| h.fy.y), lanes(&|h| h.fy.z));
+        let (pax, pay, paz) = (Vec4::splat(pa.x), Vec4::splat(pa.y), Vec4::splat(pa.z));
+        let (nax, nay, naz) = (Vec4::splat(na.x), Vec4::splat(na.y), Vec4::splat(na.z));
+        let tmax2 = Vec4::splat(self.tmax2);
+        let mut cos_h = [0.0f32; LANES];
+        for (ch, h) in cos_h.iter_mut().zip(&grp.hz) {
+            *ch = h.sc.1;
+        }
+        // The previous sample's in-plane coordinates (NaN before the first).
+        let (mut prev_x, mut prev_y) = (Vec4::NAN, Vec4::NAN);
+        let mut live = [false; LANES];
+        for (l, lv) in live.iter_mut().enumerate().take(grp.n) {
+            *lv = grp.count[l] > 0;
+        }
+        let steps = grp.count.iter().copied().max().unwrap_or(0);
+        let mut any = false;
+        for k in 0..steps {
+            let mut q = [Vec3A::NAN; LANES];
+            for l in 0..grp.n {
+                if !live[l] {
+                    continue;
+                }
+                if k >= grp.count[l] {
+                    live[l] = false;
+                    continue;
+                }
+                let Some(i) = self.next_index(grp, l) else {
+                    live[l] = false;
+                    continue;
+                };
+                let s = self.pts[i];
+                if i != c && !s.x.is_nan() {
+                    any = true;
+                    q[l] = s;
+                }
+            }
+            let vx = Vec4::new(q[0].x, q[1].x, q[2].x, q[3].x) - pax;
+            let vy = Vec4::new(q[0].y, q[1].y, q[2].y, q[3].y) - pay;
+            let vz = Vec4::new(q[0].z, q[1].z, q[2].z, q[3].z) - paz;
+            let l2 = (vx * vx + vy * vy) + vz * vz;
+            // Empty, own or skipped lanes are NaN and fail every test.
+            let inside = l2.cmplt(tmax2);
+            let height = (nax * vx + nay * vy) + naz * vz;
+            let height = Vec4::select((height * height).cmpgt(l2 * 1e-10), height, Vec4::ZERO);
+            let x = (vx * fxx + vy * fxy) + vz * fxz;
+            let y = (vx * fyx + vy * fyy) + vz * fyz;
+            let raise = inside & height.cmpgt(Vec4::ZERO) & x.cmpgt(Vec4::ZERO);
+            let mut bits = raise.bitmask();
+            if bits != 0 {
+                bits &= above_horizon_lanes(x, y, Vec4::from_array(cos_h)).bitmask();
+                let (xs, ys) = (x.to_array(), y.to_array());
+                let (pxs, pys) = (prev_x.to_array(), prev_y.to_array());
+                while bits != 0 {
+                    let l = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    grp.hz[l].raise(xs[l], ys[l], pxs[l], pys[l], self.inv_tmax);
+                    cos_h[l] = grp.hz[l].sc.1;
+                }
+            }
+            prev_x = Vec4::select(inside, x, prev_x);
+            prev_y = Vec4::select(inside, y, prev_y);
+        }
+        any
+    }
+
+    /// The reference for [`Ctx::march_lanes`]: each lane's half-plane marched on its own.
+    #[cfg(test)]
+    fn march_one(&self, grp: &mut Group, c: usize, pa: Vec3A, na: Vec3A) -> bool {
+        let mut any = false;
+        for l in 0..grp.n {
+            let (mut px, mut py) = (f32::NAN, f32::NAN);
+            for _ in 0..grp.count[l] {
+                let Some(i) = self.next_index(grp, l) else {
                     break;
                 };
+                let q = self.pts[i];
                 if i == c || q.x.is_nan() {
                     continue;
                 }
@@ -380,19 +550,15 @@ impl<'a> Ctx<'a> {
                 } else {
                     0.0
                 };
-                hz.add(v, height, self.inv_tmax);
+                let hz = &mut grp.hz[l];
+                let (x, y) = (v.dot(hz.fx), v.dot(hz.fy));
+                if height > 0.0 && x > 0.0 && above_horizon(x, y, hz.sc.1) {
+                    hz.raise(x, y, px, py, self.inv_tmax);
+                }
+                (px, py) = (x, y);
             }
-            sum_s += hz.value();
         }
-        if !any {
-            return None;
-        }
-        let a = if sum_t > 0.0 { sum_s / sum_t } else { 1.0 };
-        if a.is_finite() {
-            Some(a.clamp(0.0, 1.0))
-        } else {
-            None
-        }
+        any
     }
 
     /// Screen offset from `(px, py)` to the projection `q` (x wrapped on a full-circle map).
@@ -413,6 +579,7 @@ impl<'a> Ctx<'a> {
     }
 }
 
+#[cfg(test)]
 /// True when direction `(x, y)` (`x > 0`) has a larger cosine than `cos_h`, without a square
 /// root: `y/√(x²+y²) > cos_h`.
 #[inline]
@@ -423,6 +590,16 @@ fn above_horizon(x: f32, y: f32, cos_h: f32) -> bool {
     } else {
         y >= 0.0 || y2 < k
     }
+}
+
+/// [`above_horizon`] on four lanes, with the same arithmetic.
+#[inline]
+fn above_horizon_lanes(x: Vec4, y: Vec4, cos_h: Vec4) -> BVec4A {
+    let (y2, k) = (y * y, cos_h * cos_h * (x * x + y * y));
+    let facing = y.cmpgt(Vec4::ZERO) & y2.cmpgt(k);
+    let beyond = y.cmpge(Vec4::ZERO) | y2.cmplt(k);
+    let up = cos_h.cmpge(Vec4::ZERO);
+    (up & facing) | (!up & beyond)
 }
 
 /// `ρ` as a function of `d/t_max`: `x = clamp(·, 0, 1)`, `x²(3 − 2x)` (same as [`super::rho`]).
@@ -467,7 +644,7 @@ fn exit(o: f32, inv: f32, size: f32) -> f32 {
 
 /// One half-plane `ω = cos γ V + sin γ u`, `γ ∈ [0, π]`: the arc `[lo, hi]` where
 /// `f(γ) = (a cos γ + b sin γ) sin γ` is positive (`a = n·V`, `b = n·u`).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct Slice {
     a: f32,
     b: f32,
@@ -586,7 +763,7 @@ enum Blocker {
 }
 
 /// The running horizon of one half-plane march.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct Horizon {
     slice: Slice,
     /// The linear forms giving a sample's in-plane coordinates `x = v·fx` (outward) and
@@ -600,8 +777,6 @@ struct Horizon {
     g_h: f32,
     /// Σ of the blocked terms so far.
     acc: f32,
-    /// The previous sample's offset (NaN before the first sample).
-    prev: Vec3A,
 }
 
 impl Horizon {
@@ -615,27 +790,13 @@ impl Horizon {
             sc: slice.hi_sc,
             g_h: slice.g_hi,
             acc: 0.0,
-            prev: Vec3A::NAN,
         }
     }
 
-    /// Adds the next sample outward, at offset `v` from `p` and height `n·v` above `p`'s
-    /// tangent plane. Only a sample above the tangent plane, in front (`x > 0`) and above the
-    /// horizon raises it; every sample is the start of the next segment.
-    #[inline]
-    fn add(&mut self, v: Vec3A, height: f32, inv_tmax: f32) {
-        if height > 0.0 {
-            let (x, y) = (v.dot(self.fx), v.dot(self.fy));
-            if x > 0.0 && above_horizon(x, y, self.sc.1) {
-                self.raise(x, y, inv_tmax);
-            }
-        }
-        self.prev = v;
-    }
-
-    /// Raises the horizon to the sample at in-plane `(x, y)`, adding the blocked directions.
+    /// Raises the horizon to the sample at in-plane `(x, y)`, adding the blocked directions;
+    /// `(px, py)` is the previous sample of the march (NaN before the first).
     #[inline(never)]
-    fn raise(&mut self, x: f32, y: f32, inv_tmax: f32) {
+    fn raise(&mut self, x: f32, y: f32, px: f32, py: f32, inv_tmax: f32) {
         let sl = &self.slice;
         let il = 1.0 / (x * x + y * y).sqrt();
         let (mut s, mut c) = (x * il, y * il);
@@ -647,7 +808,6 @@ impl Horizon {
         let full = self.g_h - g_k;
         // ρ ≡ 0 in range when t_max = ∞; a negligible sliver is not worth the quadrature.
         if full > 1e-7 && inv_tmax > 0.0 {
-            let (px, py) = (self.prev.dot(self.fx), self.prev.dot(self.fy));
             let blocker = if px > 0.0 {
                 Blocker::Segment {
                     px,
@@ -1146,6 +1306,61 @@ mod tests {
     }
 
     #[test]
+    fn lanes_march_exactly_like_one_half_plane_at_a_time() {
+        let proj = camera(96, 96, 35f32.to_radians());
+        let pinhole = cast(&proj, |o, d| {
+            let f = plane(o, d, Vec3::Z, -3.0).map(|t| (t, Vec3::Z));
+            let wl = plane(o, d, Vec3::NEG_Y, -4.0).map(|t| (t, Vec3::NEG_Y));
+            match (f, wl) {
+                (Some(a), Some(b)) => Some(if a.0 < b.0 { a } else { b }),
+                (a, b) => a.or(b),
+            }
+        });
+        let (w, h) = (256usize, 128usize);
+        let model = Model::Equirect {
+            rot: Mat3::IDENTITY,
+            az_ref: 0.0,
+            sx: w as f32 / TAU,
+            ox: w as f32 * 0.5,
+            sy: -(h as f32) / PI,
+            oy: h as f32 * 0.5,
+        };
+        let room = Projection::new(model, w, h, true);
+        let (lo, hi) = (Vec3::new(-2.5, -2.0, -1.5), Vec3::new(3.5, 3.0, 1.5));
+        let boxed = cast(&room, |o, d| box_hit(o, d, lo, hi));
+        let scenes = [
+            (heightfield(48, 40, 1.0, waves), 6.0),
+            (step_scene(30.0), 20.0),
+            ((pinhole, proj), 1.0),
+            ((boxed, room), 0.5),
+        ];
+        let mut raised = 0;
+        for ((g, proj), tmax) in &scenes {
+            let pts = positions(g);
+            for (d, st, t) in [
+                (1, 8, *tmax),
+                (3, 5, *tmax),
+                (8, 8, *tmax),
+                (7, 30, f32::INFINITY),
+            ] {
+                let prm = params(d, st, t);
+                let ctx = Ctx::new(g, &pts, proj, &prm);
+                for c in 0..g.width * g.height {
+                    if !g.is_valid(c) {
+                        continue;
+                    }
+                    let (x, y) = (c % g.width, c / g.width);
+                    let one = ctx.pixel_with(x, y, c, Ctx::march_one);
+                    let lanes = ctx.pixel_with(x, y, c, Ctx::march_lanes);
+                    assert_eq!(one.map(f32::to_bits), lanes.map(f32::to_bits), "pixel {c}");
+                    raised += usize::from(one.is_some_and(|a| a < 1.0));
+                }
+            }
+        }
+        assert!(raised > 1000, "{raised}");
+    }
+
+    #[test]
     fn deterministic_for_a_seed_and_seeds_differ_a_little() {
         let (g, proj) = heightfield(64, 64, 1.0, waves);
         let a = ssao(&g, &proj, &params(8, 8, 10.0));
@@ -1183,13 +1398,31 @@ mod tests {
         f64::INFINITY
     }
 
-    /// Feeds a sample given by its in-plane coordinates (`fx = x̂`, `fy = ŷ`).
-    fn add_xy(hz: &mut Horizon, x: f32, y: f32, above: bool, inv_tmax: f32) {
-        hz.add(
-            Vec3A::new(x, y, 0.0),
-            if above { 1.0 } else { -1.0 },
-            inv_tmax,
-        );
+    /// A march fed samples by their in-plane coordinates, with the tests of the march loops.
+    struct Fed {
+        hz: Horizon,
+        prev: (f32, f32),
+    }
+
+    impl Fed {
+        fn new(sl: Slice) -> Fed {
+            Fed {
+                hz: Horizon::new(sl, Vec3A::X, Vec3A::Y),
+                prev: (f32::NAN, f32::NAN),
+            }
+        }
+
+        /// A sample at `(x, y)`, above `p`'s tangent plane or not.
+        fn add(&mut self, x: f32, y: f32, above: bool, inv_tmax: f32) {
+            if above && x > 0.0 && above_horizon(x, y, self.hz.sc.1) {
+                self.hz.raise(x, y, self.prev.0, self.prev.1, inv_tmax);
+            }
+            self.prev = (x, y);
+        }
+
+        fn value(&self) -> f32 {
+            self.hz.value()
+        }
     }
 
     #[test]
@@ -1201,9 +1434,9 @@ mod tests {
         // (2.5,3.5) raises it to γ = atan(2.5/3.5): S/T = sin²γ = 6.25/18.5, i.e.
         // 1 − sin²(elevation).
         let samples = [(1.0, 1.0), (2.0, 1.5), (2.5, 3.5)];
-        let mut hz = Horizon::new(sl, Vec3A::X, Vec3A::Y);
+        let mut hz = Fed::new(sl);
         for (x, y) in samples {
-            add_xy(&mut hz, x, y, true, 1.0 / f32::INFINITY);
+            hz.add(x, y, true, 1.0 / f32::INFINITY);
         }
         let want = 6.25 / 18.5;
         assert!(
@@ -1215,9 +1448,9 @@ mod tests {
         // sample), r = cos γ / sin²γ. [γ₃, 45°]: the segment (2,1.5)–(2.5,3.5),
         // r = cross(P, D) / cross(ω, D) with D = (0.5, 2). [0, γ₃]: open.
         let tmax = 4.0;
-        let mut hz = Horizon::new(sl, Vec3A::X, Vec3A::Y);
+        let mut hz = Fed::new(sl);
         for (x, y) in samples {
-            add_xy(&mut hz, x, y, true, 1.0 / tmax);
+            hz.add(x, y, true, 1.0 / tmax);
         }
         let (g1, g3) = (FRAC_PI_2 / 2.0, 2.5f32.atan2(3.5));
         let parabola = |g: f64| g.cos() / (g.sin() * g.sin());
@@ -1233,10 +1466,10 @@ mod tests {
         let sl = Slice::new(0.8, 0.6).expect("slice");
         assert!((sl.hi - (0.6f32.atan2(0.8) + FRAC_PI_2)).abs() < 1e-6);
         assert!((sl.open() as f64 - numeric(&sl, 0.0, PI, open, 1.0)).abs() < 1e-5);
-        let mut hz = Horizon::new(sl, Vec3A::X, Vec3A::Y);
+        let mut hz = Fed::new(sl);
         // γ = 116.6°, above the tangent plane (126.9°): tangent coordinate τ = 1.1, height
         // η = 0.2 (R = 1), parabola η = κτ².
-        add_xy(&mut hz, 1.0, -0.5, true, 1.0 / 3.0);
+        hz.add(1.0, -0.5, true, 1.0 / 3.0);
         let gk = 1.0f32.atan2(-0.5);
         let parabola = |g: f64| {
             let (tw, ew) = (0.8 * g.sin() - 0.6 * g.cos(), 0.6 * g.sin() + 0.8 * g.cos());
@@ -1248,9 +1481,9 @@ mod tests {
         assert!((got - expect).abs() < 1e-4, "{got} vs {expect}");
         // Behind the line of V, below the tangent plane or below the current horizon: ignored.
         let before = hz.value();
-        add_xy(&mut hz, -1.0, 1.0, true, 1.0 / 3.0);
-        add_xy(&mut hz, 1.0, 2.0, false, 1.0 / 3.0);
-        add_xy(&mut hz, 1.0, -0.6, true, 1.0 / 3.0);
+        hz.add(-1.0, 1.0, true, 1.0 / 3.0);
+        hz.add(1.0, 2.0, false, 1.0 / 3.0);
+        hz.add(1.0, -0.6, true, 1.0 / 3.0);
         assert_eq!(hz.value(), before);
     }
 
