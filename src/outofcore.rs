@@ -21,7 +21,7 @@ use crate::merge::cull::PointCells;
 use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
 use crate::pipeline::{
     depth_range, merge_params, prepare_view, robust_diagonal, same_file, world_bounds, Config,
-    Observer, Pairs,
+    Observer, Pairs, PreparedView,
 };
 use crate::products::{self, InputRecord, Manifest, MergeMaps};
 use crate::report::ScanReport;
@@ -221,10 +221,10 @@ fn data_hash(s: &Scan) -> String {
 }
 
 /// A view's products being written (on another thread when prepare overlaps writing with
-/// computing).
+/// computing), and the view.
 enum Saving<'s> {
-    Running(std::thread::ScopedJoinHandle<'s, Result<products::ProductFiles>>),
-    Done(Box<Result<products::ProductFiles>>),
+    Running(std::thread::ScopedJoinHandle<'s, (Result<products::ProductFiles>, PreparedView)>),
+    Done(Box<(Result<products::ProductFiles>, PreparedView)>),
 }
 
 /// A prepared view whose products are not committed yet.
@@ -237,19 +237,22 @@ struct Pending<'s> {
 }
 
 /// Waits for a view's products, then writes its summary and, last, its manifest entry.
-fn commit(p: Pending<'_>, manifest: &mut Manifest, work_dir: &Path) -> Result<()> {
-    let files = match p.saving {
+/// Returns the view.
+fn commit(p: Pending<'_>, manifest: &mut Manifest, work_dir: &Path) -> Result<PreparedView> {
+    let (files, view) = match p.saving {
         Saving::Running(h) => h.join().map_err(|_| {
             Error::Param("writing a view's products failed (internal error)".into())
-        })??,
-        Saving::Done(r) => (*r)?,
+        })?,
+        Saving::Done(r) => *r,
     };
+    let files = files?;
     let json = serde_json::to_vec(&p.sum)
         .map_err(|e| Error::Param(format!("cannot encode a summary: {e}")))?;
     crate::io::atomic::write_atomic(&summary_path(work_dir, &p.key), |w| {
         std::io::Write::write_all(w, &json)
     })?;
-    manifest.record(&p.key, std::slice::from_ref(&p.rec), &p.params, &files)
+    manifest.record(&p.key, std::slice::from_ref(&p.rec), &p.params, &files)?;
+    Ok(view)
 }
 
 /// Waits for a writer thread and passes on its result.
@@ -267,6 +270,8 @@ struct MapCache {
     outside: u64,
     used: u64,
     maps: HashMap<usize, (Arc<MergeMaps>, u64)>,
+    /// Views this run prepared, kept for the merge (not placed yet).
+    fresh: HashMap<usize, (MergeMaps, u64)>,
     /// Every load the merge will ask for, in order, and how far it has got.
     future: Vec<usize>,
     pos: usize,
@@ -291,11 +296,16 @@ impl MapCache {
     /// Evicts maps, those needed latest first, until `need` more bytes fit in the budget.
     fn make_room(&mut self, need: u64) {
         let room = self.budget.saturating_sub(self.outside);
-        while self.used + need > room && !self.maps.is_empty() {
-            let victim = self.maps.keys().copied().max_by_key(|&k| self.next_use(k));
-            if let Some((_, b)) = victim.and_then(|k| self.maps.remove(&k)) {
-                self.used -= b;
-            }
+        while self.used + need > room {
+            let keys = self.maps.keys().chain(self.fresh.keys()).copied();
+            let Some(k) = keys.max_by_key(|&k| self.next_use(k)) else {
+                break;
+            };
+            let b = match self.maps.remove(&k) {
+                Some((_, b)) => b,
+                None => self.fresh.remove(&k).map_or(0, |(_, b)| b),
+            };
+            self.used -= b;
         }
     }
 
@@ -317,14 +327,22 @@ impl MapCache {
             self.pos += p + 1;
         }
         if !self.maps.contains_key(&j) {
-            // Decoding holds the file's bytes beside the maps for a moment.
-            let bytes = view_bytes(pixels, 0);
-            self.make_room(2 * bytes);
-            let mut m = products::load_maps_for_merge(dir, key)?;
+            let mut m = match self.fresh.remove(&j) {
+                Some((m, b)) => {
+                    self.used -= b;
+                    m
+                }
+                None => {
+                    // Decoding holds the file's bytes beside the maps for a moment.
+                    let bytes = view_bytes(pixels, 0);
+                    self.make_room(2 * bytes);
+                    self.loads += 1;
+                    self.bytes_read += bytes;
+                    products::load_maps_for_merge(dir, key)?
+                }
+            };
             m.place(pose, prm);
             let held = m.heap_bytes();
-            self.loads += 1;
-            self.bytes_read += bytes;
             self.used += held;
             self.maps.insert(j, (Arc::new(m), held));
         }
@@ -567,7 +585,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let floor = max_file_bytes * 5 + 3 * plan.largest_view_bytes + (16 << 20);
     // Freed memory the allocator keeps adds to the peak between two measurements of the map
     // cache: it is kept only when every view fits with that much to spare.
-    if !cfg.dry_run && plan.all_views_bytes + 2 * floor <= budget {
+    let roomy = !cfg.dry_run && plan.all_views_bytes + 2 * floor <= budget;
+    if roomy {
         keep_freed_memory();
     }
     if floor > budget {
@@ -629,8 +648,19 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     // input file fit in the budget; the manifest entry, the commit point, still follows its
     // products and summary.
     let overlap = 4 * out.plan.largest_view_bytes + 5 * max_file_bytes + (64 << 20) <= budget;
+    // When every view fits with room to spare, the merge takes the views from here instead of
+    // reading back their products (the same values).
+    let keep = roomy && !cfg.prepare_only;
+    let mut fresh: HashMap<usize, (MergeMaps, u64)> = HashMap::new();
+    let mut hand_over = |i: usize, v: PreparedView| {
+        if keep {
+            let m = MergeMaps::from_view(v);
+            let b = m.heap_bytes();
+            fresh.insert(i, (m, b));
+        }
+    };
     std::thread::scope(|sc| -> Result<()> {
-        let mut pending: Option<Pending<'_>> = None;
+        let mut pending: Option<(usize, Pending<'_>)> = None;
         for fi in 0..placer.len() {
             let stale: Vec<usize> = (0..n)
                 .filter(|&i| cat[i].file == fi && need[i])
@@ -684,29 +714,33 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                     times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
                 };
                 // The previous view's products are committed before this one's are written.
-                if let Some(p) = pending.take() {
-                    commit(p, &mut manifest, &work_dir)?;
+                if let Some((k, p)) = pending.take() {
+                    hand_over(k, commit(p, &mut manifest, &work_dir)?);
                 }
                 let key = cat[i].key.clone();
                 let wd = work_dir.clone();
+                let save = move || (products::save_view(&wd, &key, &v), v);
                 let saving = if overlap {
-                    Saving::Running(sc.spawn(move || products::save_view(&wd, &key, &v)))
+                    Saving::Running(sc.spawn(save))
                 } else {
-                    Saving::Done(Box::new(products::save_view(&wd, &key, &v)))
+                    Saving::Done(Box::new(save()))
                 };
-                pending = Some(Pending {
-                    saving,
-                    key: cat[i].key.clone(),
-                    rec: rec.clone(),
-                    params: params(&cat[i]),
-                    sum,
-                });
+                pending = Some((
+                    i,
+                    Pending {
+                        saving,
+                        key: cat[i].key.clone(),
+                        rec: rec.clone(),
+                        params: params(&cat[i]),
+                        sum,
+                    },
+                ));
                 out.prepared.0 += 1;
                 obs.advance(s.len() as u64);
             }
         }
-        if let Some(p) = pending.take() {
-            commit(p, &mut manifest, &work_dir)?;
+        if let Some((k, p)) = pending.take() {
+            hand_over(k, commit(p, &mut manifest, &work_dir)?);
         }
         Ok(())
     })?;
@@ -799,8 +833,9 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut cache = MapCache {
         budget,
         outside: 0,
-        used: 0,
+        used: fresh.values().map(|(_, b)| b).sum(),
         maps: HashMap::new(),
+        fresh,
         future,
         pos: 0,
         loads: 0,

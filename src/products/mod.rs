@@ -412,6 +412,21 @@ impl MergeMaps {
     }
 }
 
+impl MergeMaps {
+    /// What the merge reads of a view just prepared (the same values its products hold).
+    pub fn from_view(v: PreparedView) -> MergeMaps {
+        MergeMaps {
+            projection: v.sensor.projection,
+            points: v.radii.len() as u64,
+            gbuf: v.gbuf,
+            ao: v.ssao.ao,
+            no_sample: v.ssao.no_sample,
+            border: v.border,
+            placed: None,
+        }
+    }
+}
+
 /// Loads only what the merge reads of `key`'s view (no per-point file, no no-sample flags):
 /// cheaper than [`load_view`] when scan j is only a partner of other scans.
 pub fn load_maps_for_merge(dir: &Path, key: &str) -> Result<MergeMaps> {
