@@ -229,6 +229,8 @@ enum Saving<'s> {
 
 /// A prepared view whose products are not committed yet.
 struct Pending<'s> {
+    /// The scan's index in the catalog.
+    index: usize,
     saving: Saving<'s>,
     key: String,
     rec: InputRecord,
@@ -660,7 +662,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         }
     };
     std::thread::scope(|sc| -> Result<()> {
-        let mut pending: Option<(usize, Pending<'_>)> = None;
+        let mut pending: Option<Pending<'_>> = None;
         for fi in 0..placer.len() {
             let stale: Vec<usize> = (0..n)
                 .filter(|&i| cat[i].file == fi && need[i])
@@ -714,8 +716,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                     times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
                 };
                 // The previous view's products are committed before this one's are written.
-                if let Some((k, p)) = pending.take() {
-                    hand_over(k, commit(p, &mut manifest, &work_dir)?);
+                if let Some(p) = pending.take() {
+                    hand_over(p.index, commit(p, &mut manifest, &work_dir)?);
                 }
                 let key = cat[i].key.clone();
                 let wd = work_dir.clone();
@@ -725,22 +727,20 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 } else {
                     Saving::Done(Box::new(save()))
                 };
-                pending = Some((
-                    i,
-                    Pending {
-                        saving,
-                        key: cat[i].key.clone(),
-                        rec: rec.clone(),
-                        params: params(&cat[i]),
-                        sum,
-                    },
-                ));
+                pending = Some(Pending {
+                    index: i,
+                    saving,
+                    key: cat[i].key.clone(),
+                    rec: rec.clone(),
+                    params: params(&cat[i]),
+                    sum,
+                });
                 out.prepared.0 += 1;
                 obs.advance(s.len() as u64);
             }
         }
-        if let Some((k, p)) = pending.take() {
-            hand_over(k, commit(p, &mut manifest, &work_dir)?);
+        if let Some(p) = pending.take() {
+            hand_over(p.index, commit(p, &mut manifest, &work_dir)?);
         }
         Ok(())
     })?;
