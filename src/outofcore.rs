@@ -152,7 +152,7 @@ pub fn current_rss() -> Option<u64> {
 /// 24-scan site, a merge-only rerun made 0.70–0.75 M page faults and spent 5.9–10.3 s in the
 /// kernel; keeping freed memory, 0.40 M and 4.1–6.8 s. Resident memory then includes what the
 /// allocator keeps, which the map cache counts as held outside it: an over-estimate, never an
-/// under-estimate.
+/// under-estimate. The same holds for the few huge-page buffers [`crate::pagebuf`] keeps.
 pub fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt sets two of glibc's allocator parameters (plain integers, under the main
