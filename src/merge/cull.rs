@@ -230,7 +230,7 @@ impl PointCells {
 
 /// What the test needs of one view: the dilated cell sets of its G-buffer points.
 ///
-/// Cells whose radius fits a cube at most [`SET_LEVELS`] levels above the base go into
+/// Cells whose radius fits a cube at most `SET_LEVELS` levels above the base go into
 /// hashed sets grown by one cell. The few with a larger radius (points at grazing angles or
 /// on silhouettes, whose neighbours lie on another surface) would reach far past their radius
 /// that way, so they are grown by several cells at a finer level instead.

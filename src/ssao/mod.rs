@@ -46,7 +46,7 @@ pub struct SsaoParams {
 /// An AO map of one view.
 #[derive(Debug, Clone, Default)]
 pub struct AoMap {
-    /// Per-pixel AO in [0,1] (1 where empty).
+    /// Per-pixel AO in \[0, 1\] (1 where empty).
     pub ao: Vec<f32>,
     /// Per-pixel flag: a valid pixel none of whose samples was valid (AO left at 1).
     pub no_sample: Vec<bool>,

@@ -1,6 +1,6 @@
 //! Eq. 3–5 of Sabbadin et al. 2016: `a = (1/|S|) Σ ρ(‖p_i − p‖)·(1 − max(n·(p_i−p)/‖p_i−p‖, 0))`
 //! over samples uniform in the screen-space disk that a sphere of radius `r_s` projects to at
-//! the pixel's depth. Kept exactly as published (an open floor reads E[ρ] < 1; see the spec).
+//! the pixel's depth. Kept exactly as published (an open floor reads E\[ρ\] < 1; see the spec).
 //!
 //! Decisions the paper leaves open: a sample landing on an empty pixel, on the centre pixel
 //! itself, or on a point at distance 0 carries no information about the neighbourhood and is
