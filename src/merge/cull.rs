@@ -466,36 +466,28 @@ mod tests {
         v.relevant(t).is_none_or(|k| k[t.cell_of(0)])
     }
 
-    /// A small deterministic generator.
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f32 {
-            self.0 = self
-                .0
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (self.0 >> 40) as f32 / (1u64 << 24) as f32
-        }
-    }
-
     #[test]
     fn never_leaves_out_a_pair_eq7_could_accept() {
-        let mut rng = Lcg(7);
+        let mut rng = crate::ssao::rng::Rng::new(7, 0);
         for k in 0..3000 {
             // Radii from 1 mm to 3 m on both sides, so every path (sets at each level, the
             // list of large cells, large target cells) is taken.
-            let r_t = 1e-3 * 3000f32.powf(rng.next());
-            let r_v = 1e-3 * 3000f32.powf(rng.next());
-            let dir = Vec3::new(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5)
-                .normalize_or(Vec3::X);
-            let d = 2.0 * r_t.max(r_v) * 0.999 * rng.next();
+            let r_t = 1e-3 * 3000f32.powf(rng.next_f32());
+            let r_v = 1e-3 * 3000f32.powf(rng.next_f32());
+            let dir = Vec3::new(
+                rng.next_f32() - 0.5,
+                rng.next_f32() - 0.5,
+                rng.next_f32() - 0.5,
+            )
+            .normalize_or(Vec3::X);
+            let d = 2.0 * r_t.max(r_v) * 0.999 * rng.next_f32();
             let origin = if k % 2 == 0 {
                 DVec3::ZERO
             } else {
                 DVec3::new(651_234.5, 5_432_109.25, 280.0)
             };
             let pose = DMat4::from_translation(origin);
-            let p = Vec3::new(rng.next(), rng.next(), rng.next()) * 20.0 - 10.0;
+            let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 20.0 - 10.0;
             // Filler points far away size the cells like a real scan's.
             let target = [p, p + Vec3::splat(15.0), p - Vec3::splat(12.0)];
             let t = PointCells::new(&target, &[r_t, 0.01, 0.01], pose);

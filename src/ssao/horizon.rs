@@ -955,6 +955,39 @@ mod tests {
         rasterize(proj.width, proj.height, &px, &d, &pts, &nrm, &r)
     }
 
+    /// A full-circle equirect sensor at the origin, pole along z.
+    fn equirect(w: usize, h: usize) -> Projection {
+        let model = Model::Equirect {
+            rot: Mat3::IDENTITY,
+            az_ref: 0.0,
+            sx: w as f32 / TAU,
+            ox: w as f32 * 0.5,
+            sy: -(h as f32) / PI,
+            oy: h as f32 * 0.5,
+        };
+        Projection::new(model, w, h, true)
+    }
+
+    /// Corners of a closed 6 × 5 × 3 m room around a scanner 1.5 m above its floor.
+    const ROOM: (Vec3, Vec3) = (Vec3::new(-2.5, -2.0, -1.5), Vec3::new(3.5, 3.0, 1.5));
+
+    /// The G-buffer of [`ROOM`] seen by `proj`.
+    fn room(proj: &Projection) -> GBuffer {
+        cast(proj, |o, d| box_hit(o, d, ROOM.0, ROOM.1))
+    }
+
+    /// The G-buffer of the floor z = −3 and the wall y = 4 seen by `proj`.
+    fn floor_and_wall(proj: &Projection) -> GBuffer {
+        cast(proj, |o, d| {
+            let f = plane(o, d, Vec3::Z, -3.0).map(|t| (t, Vec3::Z));
+            let wl = plane(o, d, Vec3::NEG_Y, -4.0).map(|t| (t, Vec3::NEG_Y));
+            match (f, wl) {
+                (Some(a), Some(b)) => Some(if a.0 < b.0 { a } else { b }),
+                (a, b) => a.or(b),
+            }
+        })
+    }
+
     /// A pinhole camera at the origin looking along +y, pitched down by `pitch`, 60° vertical
     /// field of view.
     fn camera(w: usize, h: usize, pitch: f32) -> Projection {
@@ -1030,16 +1063,7 @@ mod tests {
         assert!(worst < 1e-6, "perspective floor: {worst}");
         assert!(m.no_sample.iter().filter(|&&f| !f).count() > 1000);
         // A floor around a terrestrial scanner (equirectangular, wrapping in azimuth).
-        let (w, h) = (256usize, 128usize);
-        let model = Model::Equirect {
-            rot: Mat3::IDENTITY,
-            az_ref: 0.0,
-            sx: w as f32 / TAU,
-            ox: w as f32 * 0.5,
-            sy: -(h as f32) / PI,
-            oy: h as f32 * 0.5,
-        };
-        let proj = Projection::new(model, w, h, true);
+        let proj = equirect(256, 128);
         let g = cast(&proj, |o, d| {
             plane(o, d, Vec3::Z, -1.5).map(|t| (t, Vec3::Z))
         });
@@ -1184,14 +1208,7 @@ mod tests {
     fn oblique_pinhole_view_of_floor_and_wall_matches_the_reference() {
         // Camera at the origin pitched 35° down; floor z = −3, wall y = 4 facing the camera.
         let proj = camera(256, 256, 35f32.to_radians());
-        let g = cast(&proj, |o, d| {
-            let f = plane(o, d, Vec3::Z, -3.0).map(|t| (t, Vec3::Z));
-            let wl = plane(o, d, Vec3::NEG_Y, -4.0).map(|t| (t, Vec3::NEG_Y));
-            match (f, wl) {
-                (Some(a), Some(b)) => Some(if a.0 < b.0 { a } else { b }),
-                (a, b) => a.or(b),
-            }
-        });
+        let g = floor_and_wall(&proj);
         let tmax = 1.0f32;
         let m = ssao(&g, &proj, &params(64, 64, tmax));
         let mut n = 0;
@@ -1251,17 +1268,9 @@ mod tests {
     fn equirect_room_matches_the_reference() {
         // A terrestrial scanner 1.5 m above the floor of a closed 6 × 5 × 3 m room.
         let (w, h) = (1024usize, 512usize);
-        let model = Model::Equirect {
-            rot: Mat3::IDENTITY,
-            az_ref: 0.0,
-            sx: w as f32 / TAU,
-            ox: w as f32 * 0.5,
-            sy: -(h as f32) / PI,
-            oy: h as f32 * 0.5,
-        };
-        let proj = Projection::new(model, w, h, true);
-        let (lo, hi) = (Vec3::new(-2.5, -2.0, -1.5), Vec3::new(3.5, 3.0, 1.5));
-        let g = cast(&proj, |o, d| box_hit(o, d, lo, hi));
+        let proj = equirect(w, h);
+        let (lo, hi) = ROOM;
+        let g = room(&proj);
         let tmax = 0.5f32;
         let m = ssao(&g, &proj, &params(32, 32, tmax));
         // Mean |a − A| over 400 random pixels, and over those with A < 0.9, in a band of
@@ -1307,32 +1316,12 @@ mod tests {
 
     #[test]
     fn lanes_march_exactly_like_one_half_plane_at_a_time() {
-        let proj = camera(96, 96, 35f32.to_radians());
-        let pinhole = cast(&proj, |o, d| {
-            let f = plane(o, d, Vec3::Z, -3.0).map(|t| (t, Vec3::Z));
-            let wl = plane(o, d, Vec3::NEG_Y, -4.0).map(|t| (t, Vec3::NEG_Y));
-            match (f, wl) {
-                (Some(a), Some(b)) => Some(if a.0 < b.0 { a } else { b }),
-                (a, b) => a.or(b),
-            }
-        });
-        let (w, h) = (256usize, 128usize);
-        let model = Model::Equirect {
-            rot: Mat3::IDENTITY,
-            az_ref: 0.0,
-            sx: w as f32 / TAU,
-            ox: w as f32 * 0.5,
-            sy: -(h as f32) / PI,
-            oy: h as f32 * 0.5,
-        };
-        let room = Projection::new(model, w, h, true);
-        let (lo, hi) = (Vec3::new(-2.5, -2.0, -1.5), Vec3::new(3.5, 3.0, 1.5));
-        let boxed = cast(&room, |o, d| box_hit(o, d, lo, hi));
+        let (pinhole, scanner) = (camera(96, 96, 35f32.to_radians()), equirect(256, 128));
         let scenes = [
             (heightfield(48, 40, 1.0, waves), 6.0),
             (step_scene(30.0), 20.0),
-            ((pinhole, proj), 1.0),
-            ((boxed, room), 0.5),
+            ((floor_and_wall(&pinhole), pinhole), 1.0),
+            ((room(&scanner), scanner), 0.5),
         ];
         let mut raised = 0;
         for ((g, proj), tmax) in &scenes {
@@ -1571,14 +1560,7 @@ mod tests {
             .and_then(|v| v.parse().ok())
             .unwrap_or(1024);
         let persp = camera(n, n, 35f32.to_radians());
-        let g_persp = cast(&persp, |o, d| {
-            let f = plane(o, d, Vec3::Z, -3.0).map(|t| (t, Vec3::Z));
-            let wl = plane(o, d, Vec3::NEG_Y, -4.0).map(|t| (t, Vec3::NEG_Y));
-            match (f, wl) {
-                (Some(a), Some(b)) => Some(if a.0 < b.0 { a } else { b }),
-                (a, b) => a.or(b),
-            }
-        });
+        let g_persp = floor_and_wall(&persp);
         let (g_waves, ortho) = heightfield(n, n, 1.0, waves);
         let cases = [
             ("ortho waves, t_max 12 px", &g_waves, &ortho, 12.0f32),
