@@ -15,7 +15,7 @@
 //! Depth is the distance to the sensor (equirect, perspective) or the distance along the
 //! view axis from the scan's nearest point (orthographic). Pixel `i` spans `[i, i+1)`.
 
-use glam::{Mat2, Mat3, Vec2, Vec3, Vec4};
+use glam::{DVec2, DVec3, Mat2, Mat3, Vec2, Vec3, Vec4};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -462,6 +462,198 @@ impl Projection {
             }
             Model::Ortho { a, b, .. } => (r * a.length(), r * b.length()),
         }
+    }
+}
+
+/// The pixels a ball of local points can be read at: [`Projection::footprint`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Footprint {
+    /// First and last row (inclusive).
+    pub rows: (usize, usize),
+    /// Column spans (inclusive), the first `spans` of them: more than one where the ball
+    /// straddles the seam of a map that wraps.
+    pub cols: [(usize, usize); 4],
+    /// Number of column spans in use (0: the ball projects outside the map).
+    pub spans: usize,
+}
+
+impl Footprint {
+    /// The column spans in use.
+    pub fn col_spans(&self) -> &[(usize, usize)] {
+        &self.cols[..self.spans]
+    }
+}
+
+/// Margin on angles computed in f64 for the f32 projection (whose `atan2` is within 3·10⁻⁷
+/// rad and whose rounding is a few ulps of π).
+const ANGLE_MARGIN: f64 = 1e-5;
+
+impl Projection {
+    /// Every pixel within `pad` pixels (along each axis) of where a point of the ball with
+    /// centre `c` and radius `r` (local frame) projects. Computed in f64 with margins for the
+    /// f32 projection's rounding, so a pad of one pixel more than the neighbourhood read around
+    /// a projection covers every pixel a merge reads for a point of the ball. `None` when no
+    /// bound exists: the ball holds the sensor, crosses a camera's image plane, or is not
+    /// finite. A footprint with no column span: the ball projects outside the map.
+    pub fn footprint(&self, c: DVec3, r: f64, pad: i64) -> Option<Footprint> {
+        use std::f64::consts::{FRAC_PI_2, PI, TAU};
+        if !(c.is_finite() && r >= 0.0 && r.is_finite()) {
+            return None;
+        }
+        // Continuous pre-warp ranges: up to two along x (either side of a seam), one along y.
+        let mut xs = [(0.0f64, 0.0f64); 2];
+        let nx;
+        let ys;
+        match self.model {
+            Model::Equirect {
+                rot,
+                az_ref,
+                sx,
+                ox,
+                sy,
+                oy,
+            } => {
+                let s = rot.as_dmat3() * c;
+                let dist = s.length();
+                if !(dist > r * (1.0 + 1e-6) + 1e-9) {
+                    return None;
+                }
+                let alpha = (r / dist).asin() + ANGLE_MARGIN;
+                let el = s.z.atan2(s.x.hypot(s.y));
+                let (el0, el1) = ((el - alpha).max(-FRAC_PI_2), (el + alpha).min(FRAC_PI_2));
+                let (sx, ox, sy, oy) = (sx as f64, ox as f64, sy as f64, oy as f64);
+                ys = sorted(sy * el0 + oy, sy * el1 + oy);
+                // Azimuths of the cap: all of them round a pole, else ±asin(sin α / cos el)
+                // (the meridians tangent to the cap).
+                let full = el + alpha >= FRAC_PI_2 || el - alpha <= -FRAC_PI_2;
+                let half = if full {
+                    PI
+                } else {
+                    (alpha.sin() / el.cos()).min(1.0).asin() + ANGLE_MARGIN
+                };
+                let az = s.y.atan2(s.x) - az_ref as f64;
+                let az = az - TAU * ((az + PI) / TAU).floor();
+                let (lo, hi) = (az - half, az + half);
+                let mut n = 0;
+                if hi - lo >= TAU {
+                    xs[0] = sorted(sx * -PI + ox, sx * PI + ox);
+                    n = 1;
+                } else {
+                    // The projection wraps azimuths into (−π, π]: the interval and its copies
+                    // a turn either way, as far as they meet that range.
+                    for k in [-TAU, 0.0, TAU] {
+                        let (a, b) = ((lo + k).max(-PI), (hi + k).min(PI));
+                        if a <= b && n < 2 {
+                            xs[n] = sorted(sx * a + ox, sx * b + ox);
+                            n += 1;
+                        }
+                    }
+                }
+                nx = n;
+            }
+            Model::Perspective { rot, a, c: c0 } => {
+                let s = rot.as_dmat3() * c;
+                // The ball's bounding box, wholly in front of the image plane: its image lies in
+                // the hull of its corners' images.
+                if !(s.z - r > 1e-9 * (1.0 + s.z.abs())) {
+                    return None;
+                }
+                let (mut u0, mut u1, mut v0, mut v1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+                for k in 0..8 {
+                    let sign = |b: usize| if k & b == 0 { -r } else { r };
+                    let p = s + DVec3::new(sign(1), sign(2), sign(4));
+                    let (u, v) = (p.x / p.z, p.y / p.z);
+                    (u0, u1, v0, v1) = (u0.min(u), u1.max(u), v0.min(v), v1.max(v));
+                }
+                let (a, c0) = (a.as_dmat2(), c0.as_dvec2());
+                let (mut x, mut y) = ((f64::MAX, f64::MIN), (f64::MAX, f64::MIN));
+                for uv in [(u0, v0), (u0, v1), (u1, v0), (u1, v1)] {
+                    let px = a * DVec2::new(uv.0, uv.1) + c0;
+                    x = (x.0.min(px.x), x.1.max(px.x));
+                    y = (y.0.min(px.y), y.1.max(px.y));
+                }
+                // Relative rounding of the f32 division and affine map.
+                let grow = |(lo, hi): (f64, f64)| {
+                    let m = 1e-5 * (1.0 + lo.abs().max(hi.abs()));
+                    (lo - m, hi + m)
+                };
+                xs[0] = grow(x);
+                ys = grow(y);
+                nx = 1;
+            }
+            Model::Ortho { a, a0, b, b0, .. } => {
+                let (a, b) = (a.as_dvec3(), b.as_dvec3());
+                let grow = |g: DVec3, o: f32| {
+                    let m = g.dot(c) + o as f64;
+                    let e = g.length() * r + 1e-5 * (1.0 + m.abs());
+                    (m - e, m + e)
+                };
+                xs[0] = grow(a, a0);
+                ys = grow(b, b0);
+                nx = 1;
+            }
+        }
+        let warp = |w: &Option<Warp>, (lo, hi): (f64, f64)| match w {
+            Some(w) => (w.apply(lo as f32) as f64, w.apply(hi as f32) as f64),
+            None => (lo, hi),
+        };
+        // Integer pixel spans, `pad` pixels wider (saturating far outside any map).
+        let span = |(lo, hi): (f64, f64)| {
+            let f = |v: f64| v.floor().clamp(-1e15, 1e15) as i64;
+            (f(lo).saturating_sub(pad), f(hi).saturating_add(pad))
+        };
+        let (w, h) = (self.width as i64, self.height as i64);
+        let mut fp = Footprint {
+            rows: (0, 0),
+            cols: [(0, 0); 4],
+            spans: 0,
+        };
+        if !(ys.0.is_finite() && ys.1.is_finite()) {
+            return None;
+        }
+        let (r0, r1) = span(warp(&self.warp_y, ys));
+        if w == 0 || r1 < 0 || r0 >= h {
+            return Some(fp);
+        }
+        fp.rows = (r0.max(0) as usize, r1.min(h - 1) as usize);
+        for &x in &xs[..nx] {
+            if !(x.0.is_finite() && x.1.is_finite()) {
+                return None;
+            }
+            let (c0, c1) = span(warp(&self.warp_x, x));
+            let mut push = |a: i64, b: i64| {
+                if a <= b && fp.spans < 4 {
+                    fp.cols[fp.spans] = (a as usize, b as usize);
+                    fp.spans += 1;
+                }
+            };
+            if !self.wrap_x {
+                push(c0.max(0), c1.min(w - 1));
+            } else if c1 - c0 + 1 >= w {
+                fp.cols[0] = (0, w as usize - 1);
+                fp.spans = 1;
+                return Some(fp);
+            } else {
+                let (a, b) = (c0.rem_euclid(w), c1.rem_euclid(w));
+                if a <= b {
+                    push(a, b);
+                } else {
+                    push(a, w - 1);
+                    push(0, b);
+                }
+            }
+        }
+        Some(fp)
+    }
+}
+
+/// `(a, b)` in ascending order.
+#[inline]
+fn sorted(a: f64, b: f64) -> (f64, f64) {
+    if a <= b {
+        (a, b)
+    } else {
+        (b, a)
     }
 }
 

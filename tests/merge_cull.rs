@@ -1,7 +1,8 @@
 //! Leaving out (point, view) pairs that cannot correspond must never change the merge: on a
-//! row of rooms joined by doorways (most pairs of points and partner views are far apart),
-//! in a local and in a georeferenced frame, the merged values are bit-identical with and
-//! without the cells, and the cells do leave pairs out.
+//! row of rooms joined by doorways (most pairs of points and partner views are far apart, or
+//! hidden from each other), in a local and in a georeferenced frame, for scanners, cameras and
+//! linear sweeps, the merged values are bit-identical with and without the cells, and the
+//! cells leave out most pairs that find no partner.
 
 use glam::{DMat4, DVec3};
 use mvao::merge::cull::PointCells;
@@ -13,10 +14,10 @@ use mvao::sensor::ProjectionChoice;
 use mvao::ssao::{Estimator, SsaoParams};
 use mvao::synth::{scan_scene, station_layout, SceneKind};
 
-fn site(offset: DVec3) -> Vec<Scan> {
+fn site(offset: DVec3, model: SensorModel) -> Vec<Scan> {
     let kind = SceneKind::Suite { rooms: 2 };
     let scene = kind.scene();
-    station_layout(kind, SensorModel::Equirect, 8, 480, 240)
+    station_layout(kind, model, 8, 480, 240)
         .iter()
         .enumerate()
         .map(|(i, st)| {
@@ -27,8 +28,8 @@ fn site(offset: DVec3) -> Vec<Scan> {
         .collect()
 }
 
-fn check(offset: DVec3) {
-    let scans = site(offset);
+fn check(offset: DVec3, model: SensorModel) {
+    let scans = site(offset, model);
     let sp = SsaoParams {
         estimator: Estimator::Horizon,
         radius: 0.2,
@@ -79,10 +80,26 @@ fn check(offset: DVec3) {
             assert_eq!(bits(&a), bits(&b), "scan {i}, N = {neighbors}");
             assert_eq!(sa.samples_kept, sb.samples_kept, "scan {i}");
             assert_eq!(sa.zero_weight, sb.zero_weight, "scan {i}");
-            assert_eq!(sa.point_views, sb.point_views + sb.culled, "scan {i}");
+            // An equirect view projects every point; a camera's pairs behind it count as
+            // neither tried nor projected without the cells, but as left out with them.
+            assert!(sb.point_views <= sa.point_views, "scan {i}");
+            if model == SensorModel::Equirect {
+                assert_eq!(sa.point_views, sb.point_views + sb.culled, "scan {i}");
+            }
             assert!(sb.samples_kept > 0);
             left_out += sb.culled;
             tried += sa.point_views;
+            if neighbors == 1 {
+                // With one sample per pair, samples kept = pairs that found a partner: the
+                // cells leave out most pairs that would find none (points hidden from the
+                // view as well as points far from it).
+                assert!(
+                    3 * sb.samples_kept > 2 * sb.point_views,
+                    "scan {i}: {} of {} projected pairs found a partner",
+                    sb.samples_kept,
+                    sb.point_views
+                );
+            }
         }
         // Two rooms, four stations each: most points are far from what the other room's
         // stations stored.
@@ -95,10 +112,19 @@ fn check(offset: DVec3) {
 
 #[test]
 fn culling_leaves_the_merge_unchanged() {
-    check(DVec3::ZERO);
+    check(DVec3::ZERO, SensorModel::Equirect);
+}
+
+#[test]
+fn culling_leaves_the_merge_of_cameras_and_sweeps_unchanged() {
+    check(DVec3::ZERO, SensorModel::Perspective);
+    check(DVec3::ZERO, SensorModel::Ortho);
 }
 
 #[test]
 fn culling_leaves_the_merge_unchanged_in_a_georeferenced_frame() {
-    check(DVec3::new(512_345.678, 5_234_567.891, 312.5));
+    check(
+        DVec3::new(512_345.678, 5_234_567.891, 312.5),
+        SensorModel::Equirect,
+    );
 }

@@ -1,8 +1,10 @@
 //! Projection round trips for the three sensor models: pixel → ray → point → pixel, across the
-//! equirect azimuth seam and next to its poles, and with uneven-step grid warps.
+//! equirect azimuth seam and next to its poles, and with uneven-step grid warps; and the
+//! footprint of a ball holding every pixel its points project to.
 
-use glam::{Mat2, Mat3, Vec2, Vec3};
+use glam::{DVec3, Mat2, Mat3, Vec2, Vec3};
 use mvao::projection::{Model, Projection, Warp};
+use mvao::ssao::rng::Rng;
 
 fn full_sphere(w: usize, h: usize) -> Projection {
     let tau = std::f32::consts::TAU;
@@ -191,4 +193,158 @@ fn equirect_image_derivative_matches_finite_differences() {
     }
     // Undefined at the sensor itself.
     assert!(p.image_derivative(Vec3::ZERO, Vec3::X).is_none());
+}
+
+/// Every point of a ball lands in the ball's footprint (or outside the map when the footprint
+/// is empty): equirect maps with and without wrap, seam, poles, warps, tilted sensors,
+/// perspective and orthographic views; balls near and far, small and large.
+#[test]
+fn footprints_hold_every_projection_of_their_ball() {
+    let mut tilted = full_sphere(1440, 720);
+    tilted.model = match tilted.model {
+        Model::Equirect {
+            az_ref,
+            sx,
+            ox,
+            sy,
+            oy,
+            ..
+        } => Model::Equirect {
+            rot: Mat3::from_rotation_x(0.4) * Mat3::from_rotation_z(1.1),
+            az_ref,
+            sx,
+            ox,
+            sy,
+            oy,
+        },
+        m => m,
+    };
+    let mut partial = full_sphere(400, 300);
+    partial.wrap_x = false;
+    if let Model::Equirect { sx, ox, .. } = &mut partial.model {
+        (*sx, *ox) = (-400.0, 200.0);
+    }
+    let mut warped = full_sphere(60, 40);
+    warped.warp_x = Warp::new((0..60).map(|k| 0.5 + (k as f32).powf(1.2)).collect());
+    warped.warp_y = Warp::new(
+        (0..40)
+            .map(|k| 0.5 + 2.0 * (k as f32) + 0.01 * (k * k) as f32)
+            .collect(),
+    );
+    warped.wrap_x = false;
+    let camera = Projection::new(
+        Model::Perspective {
+            rot: Mat3::from_rotation_y(0.3),
+            a: Mat2::from_cols(Vec2::new(300.0, 20.0), Vec2::new(-10.0, 310.0)),
+            c: Vec2::new(320.0, 240.0),
+        },
+        640,
+        480,
+        false,
+    );
+    let ortho = Projection::new(
+        Model::Ortho {
+            a: Vec3::new(100.0, 10.0, 0.0),
+            a0: 50.0,
+            b: Vec3::new(0.0, 80.0, 30.0),
+            b0: 20.0,
+            toward: Vec3::new(0.0, -0.35, 0.936_7).normalize(),
+            depth0: 5.0,
+        },
+        300,
+        200,
+        false,
+    );
+    let views = [
+        full_sphere(1440, 720),
+        tilted,
+        partial,
+        warped,
+        camera,
+        ortho,
+    ];
+    let mut rng = Rng::new(7, 0);
+    let mut u = || rng.next_f32() as f64 * 2.0 - 1.0;
+    let (mut tried, mut outside, mut unbounded) = (0, 0, 0);
+    for (vi, p) in views.iter().enumerate() {
+        for ball in 0..400 {
+            // Centres from 0.2 m to 40 m; radii from 1 mm to 2 m; some right on the seam
+            // (−x after az_ref) or a pole.
+            let dist = 0.2 * 200f64.powf(0.5 * (u() + 1.0));
+            let mut dir = DVec3::new(u(), u(), u()).normalize();
+            if ball % 10 == 0 {
+                dir = DVec3::new(-(0.3f64.cos()), -(0.3f64.sin()), 0.01 * u()).normalize();
+            } else if ball % 10 == 1 {
+                dir = DVec3::new(0.01 * u(), 0.01 * u(), 1.0).normalize();
+            }
+            let c = dir * dist;
+            let r = 0.001 * 2000f64.powf(0.5 * (u() + 1.0)) * dist.min(1.0);
+            let Some(fp) = p.footprint(c, r, 0) else {
+                unbounded += 1;
+                continue;
+            };
+            tried += 1;
+            for _ in 0..200 {
+                let v = DVec3::new(u(), u(), u());
+                let v = if v.length() > 1.0 { v.normalize() } else { v };
+                let q = (c + v * r).as_vec3();
+                let Some(pr) = p.project(q) else {
+                    continue;
+                };
+                let Some(i) = p.pixel_index(pr.x, pr.y) else {
+                    outside += 1;
+                    continue;
+                };
+                let (x, y) = (i % p.width, i / p.width);
+                assert!(
+                    fp.spans > 0
+                        && (fp.rows.0..=fp.rows.1).contains(&y)
+                        && fp.col_spans().iter().any(|s| (s.0..=s.1).contains(&x)),
+                    "view {vi}: ball {c:?} r {r}: point {q:?} at pixel ({x}, {y}) outside {fp:?}"
+                );
+            }
+        }
+    }
+    assert!(
+        tried > 2000 && outside > 0,
+        "{tried} balls, {outside} points off the map"
+    );
+    assert!(
+        unbounded > 0 && unbounded < 600,
+        "{unbounded} balls with no bound"
+    );
+}
+
+#[test]
+fn footprints_say_when_there_is_no_bound() {
+    let p = full_sphere(720, 360);
+    // The ball holds the sensor.
+    assert!(p.footprint(DVec3::new(0.1, 0.0, 0.0), 0.2, 1).is_none());
+    assert!(p
+        .footprint(DVec3::new(f64::NAN, 0.0, 0.0), 0.2, 1)
+        .is_none());
+    // Round a pole every column may be read; a small ball far away reads a few.
+    let pole = p.footprint(DVec3::new(0.0, 0.0, 5.0), 0.1, 0).unwrap();
+    assert_eq!(pole.col_spans(), &[(0, 719)]);
+    let small = p.footprint(DVec3::new(5.0, 1.0, 0.5), 0.01, 1).unwrap();
+    let cols: usize = small.col_spans().iter().map(|s| s.1 - s.0 + 1).sum();
+    assert!(cols <= 6 && small.rows.1 - small.rows.0 <= 5, "{small:?}");
+    // A camera: a ball crossing the image plane has no bound; one beside the image, no pixel.
+    let cam = Projection::new(
+        Model::Perspective {
+            rot: Mat3::IDENTITY,
+            a: Mat2::from_diagonal(Vec2::splat(100.0)),
+            c: Vec2::new(50.0, 50.0),
+        },
+        100,
+        100,
+        false,
+    );
+    assert!(cam.footprint(DVec3::new(0.0, 0.0, 0.05), 0.1, 1).is_none());
+    assert_eq!(
+        cam.footprint(DVec3::new(10.0, 0.0, 1.0), 0.1, 1)
+            .unwrap()
+            .spans,
+        0
+    );
 }

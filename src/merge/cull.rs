@@ -18,7 +18,7 @@
 
 use crate::gbuffer::{GBuffer, EMPTY};
 use crate::scan::occupancy::{world_cell, world_cells};
-use glam::{DMat4, Vec3};
+use glam::{DMat4, DVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashSet;
 use std::hash::{BuildHasherDefault, Hasher};
@@ -215,6 +215,21 @@ impl PointCells {
     #[inline]
     pub fn cell_of(&self, i: usize) -> usize {
         self.cell_of.get(i).map_or(0, |&c| c as usize)
+    }
+
+    /// Number of cells.
+    pub fn cell_count(&self) -> usize {
+        self.cells.cells.len()
+    }
+
+    /// Cell `c` as a ball in world coordinates, with the largest radius of its points: the
+    /// cube's centre, and its half diagonal plus the rounding allowance of its points.
+    pub fn ball(&self, c: usize) -> (DVec3, f64, f32) {
+        let side = (self.cells.base as f64).exp2();
+        let k = self.cells.cells[c];
+        let centre = DVec3::new(k[0] as f64 + 0.5, k[1] as f64 + 0.5, k[2] as f64 + 0.5) * side;
+        let r = 0.5 * 3f64.sqrt() * side * (1.0 + 1e-9) + self.cells.sigma;
+        (centre, r, self.cells.rmax[c])
     }
 
     /// Number of points indexed.

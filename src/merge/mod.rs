@@ -6,6 +6,7 @@
 
 pub mod border;
 pub mod cull;
+pub mod visible;
 pub mod weights;
 
 use crate::gbuffer::{GBuffer, EMPTY};
@@ -41,6 +42,8 @@ pub struct ViewMaps {
     near: Vec<Vec4>,
     /// Normal, `w_d·w_n`, SSAO and border distance.
     rest: Vec<[f32; 6]>,
+    /// Ranges of the stored points per tile, for leaving out hidden cells.
+    tiles: visible::RangeTiles,
 }
 
 impl ViewMaps {
@@ -54,7 +57,7 @@ impl ViewMaps {
     ) -> ViewMaps {
         let n = g.point.len();
         let use_wd = proj.sensor_model() != crate::projection::SensorModel::Ortho;
-        let (near, rest) = (0..n)
+        let (near, rest): (Vec<Vec4>, Vec<[f32; 6]>) = (0..n)
             .into_par_iter()
             .map(|i| {
                 if g.point[i] == EMPTY {
@@ -72,16 +75,18 @@ impl ViewMaps {
                 (p.extend(g.radius[i]), [nrm.x, nrm.y, nrm.z, wdn, a, b])
             })
             .unzip();
+        let tiles = visible::RangeTiles::new(proj, g.width, &near);
         ViewMaps {
             width: g.width,
             near,
             rest,
+            tiles,
         }
     }
 
     /// Heap bytes held.
     pub fn heap_bytes(&self) -> u64 {
-        (self.near.capacity() * 16 + self.rest.capacity() * 24) as u64
+        (self.near.capacity() * 16 + self.rest.capacity() * 24) as u64 + self.tiles.heap_bytes()
     }
 }
 
@@ -198,10 +203,16 @@ pub fn accumulate(
     let b = (relm * t.proj.sensor_homogeneous().as_dvec4()).as_vec4();
     const CHUNK: usize = 8192;
     let m = v.maps;
-    // Cells of the target that may hold a partner in this view (all, for its own view).
-    let keep = match (t.cells, v.cells) {
-        (Some(pc), Some(vc)) if j != t.index && pc.len() == t.points.len() => {
-            vc.relevant(pc).map(|k| (pc, k))
+    // Cells of the target that may hold a partner in this view (all, for its own view): near
+    // a point the view stored, and not hidden behind what it stored there.
+    let keep = match t.cells {
+        Some(pc) if j != t.index && pc.len() == t.points.len() => {
+            let mut keep = v
+                .cells
+                .and_then(|vc| vc.relevant(pc))
+                .unwrap_or_else(|| vec![true; pc.cell_count()]);
+            visible::cull_hidden(&mut keep, pc, v.pose, v.proj, &m.tiles, half);
+            Some((pc, keep))
         }
         _ => None,
     };
