@@ -803,8 +803,14 @@ fn corrupt_inputs_are_clear_errors() {
     b[105..107].copy_from_slice(&10u16.to_le_bytes());
     std::fs::write(&bad, &b).unwrap();
     expect_format_error(&bad, "record length");
-    // Unknown version and format, zero scale.
-    for (at, val) in [(25usize, 9u8), (104, 11), (131 + 7, 0)] {
+    // Unknown version and format (also with the compression bits set), zero scale.
+    for (at, val) in [
+        (25usize, 9u8),
+        (104, 11),
+        (104, 0x8b),
+        (104, 0xf2),
+        (131 + 7, 0),
+    ] {
         let mut b = good.clone();
         if at == 138 {
             b[131..139].copy_from_slice(&0f64.to_le_bytes());
@@ -816,6 +822,46 @@ fn corrupt_inputs_are_clear_errors() {
     }
     // The untouched file still reads.
     assert_eq!(read_las(&p).unwrap().len(), spec.n);
+}
+
+/// LAS 1.0–1.3 headers count points by return for returns 1–5 only, yet legacy records hold
+/// up to 7: such a file is written as LAS 1.4, every record kept.
+#[test]
+fn return_numbers_above_five_move_to_las14() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = Spec::new((1, 2), 0);
+    let inp = dir.path().join("returns.las");
+    let recs = make_las(&inp, &spec);
+    // The las crate will not write such a file: patch the records in place.
+    let bytes = std::fs::read(&inp).unwrap();
+    let start = u32::from_le_bytes(bytes[96..100].try_into().unwrap()) as u64;
+    for k in 0..3 {
+        let flags = (recs[k * STD_LEN[0] + 14] & 0xc0) | (5 + k as u8) | 7 << 3;
+        patch(&inp, start + (k * STD_LEN[0] + 14) as u64, &[flags]);
+    }
+    let input = read_las(&inp).unwrap();
+    let out = dir.path().join("returns.out.las");
+    write_las(
+        &input,
+        &ao_values(spec.n),
+        1.0,
+        ColorMode::Modulate,
+        &out,
+        false,
+    )
+    .unwrap();
+    let (h, got) = read_back(&out);
+    assert_eq!(h.version(), las::Version::new(1, 4));
+    assert_eq!(got.len() / h.point_format().len() as usize, spec.n);
+    let len = h.point_format().len() as usize;
+    for (k, r) in got.chunks_exact(len).take(3).enumerate() {
+        assert_eq!(r[14] & 7, 5 + k as u8, "record {k}");
+    }
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        2,
+        "no temporary left"
+    );
 }
 
 #[test]

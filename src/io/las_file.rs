@@ -391,6 +391,9 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
         ))
     })?;
     let format_id = raw.point_data_record_format & 0x3f;
+    if format_id as usize >= STD_LEN.len() {
+        return Err(bad(format!("unknown point format {format_id}")));
+    }
     let compressed = format.is_compressed;
     #[cfg(not(feature = "laz"))]
     if compressed {
@@ -913,9 +916,18 @@ pub fn write_las(
         v.description = las_ascii(&v.description, 32);
     }
     let v = builder.version;
+    // Legacy records hold return numbers up to 7, but before LAS 1.4 the header counts
+    // points by return for 1–5 only.
+    let high_returns = !input.format.is_extended
+        && input
+            .records
+            .par_chunks_exact(input.record_len.max(1))
+            .any(|r| r.len() > 14 && r[14] & 7 > 5);
+    let large = v.supports::<las::feature::LargeFiles>();
     let fits = v.supports_point_format(format)
         && (builder.evlrs.is_empty() || v.supports::<las::feature::Evlrs>())
-        && (input.len() as u64 <= u32::MAX as u64 || v.supports::<las::feature::LargeFiles>());
+        && (input.len() as u64 <= u32::MAX as u64 || large)
+        && (!high_returns || large);
     let header = if fits {
         builder.clone().into_header().ok()
     } else {
@@ -1179,6 +1191,9 @@ where
         });
         if let Err(e) = written {
             dead.store(true, Ordering::Relaxed);
+            // The writer closes itself on drop and panics if that fails again (as it does
+            // for a header it cannot write): it is left undropped instead.
+            std::mem::forget(writer);
             return Err(werr(e));
         }
         let sink = writer.into_inner().map_err(werr)?;
