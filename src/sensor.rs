@@ -40,6 +40,15 @@ pub struct SensorSetup {
 
 /// Largest map side (pixels) built from ungridded points.
 const MAX_SIDE: f64 = 16384.0;
+/// A map built from points has at most this many pixels per point (or [`MIN_PIXEL_CAP`]):
+/// points bunched in a few tiny patches of a wide field of view (a scanner position far from
+/// where it really was) would otherwise ask for a map of gigabytes.
+const MAX_PIXELS_PER_POINT: f64 = 4.0;
+/// The pixel cap for scans of few points.
+const MIN_PIXEL_CAP: f64 = 65536.0;
+/// A native grid with more cells per valid point than this is resampled instead (a header
+/// declaring a grid far larger than its points).
+const MAX_GRID_CELLS_PER_POINT: u64 = 16;
 /// A grid fit worse than this (RMS pixels) is not used; the map is rebuilt from the points.
 const MAX_FIT_RMS: f64 = 3.0;
 /// Points used for fitting (a deterministic stride subsample beyond this).
@@ -57,7 +66,11 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
         (ProjectionChoice::Auto, Some(SensorModel::Ortho)) => ProjectionChoice::Ortho,
         (c, _) => c,
     };
-    if let Some(grid) = &scan.grid {
+    let sparse = scan.grid.as_ref().is_some_and(|g| {
+        u64::from(g.rows) * u64::from(g.cols)
+            > (MAX_GRID_CELLS_PER_POINT * scan.len() as u64).max(MIN_PIXEL_CAP as u64)
+    });
+    if let Some(grid) = scan.grid.as_ref().filter(|_| !sparse) {
         let mut fits = fit_grid(scan, choice);
         for f in &mut fits {
             add_warps(f, scan, grid);
@@ -126,7 +139,9 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
     };
     let projection = from_points(&scan.points, model)
         .ok_or_else(|| Error::scan(&scan.name, format!("no {model} map fits its points")))?;
-    let gridnote = if scan.grid.is_some() {
+    let gridnote = if sparse {
+        "native grid has far more cells than points, so it is resampled; "
+    } else if scan.grid.is_some() {
         "native grid fits no model within 3 px, so it is resampled; "
     } else {
         ""
@@ -725,6 +740,9 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
         return None;
     }
     let n = points.len();
+    let cap = (MAX_PIXELS_PER_POINT * n as f64).max(MIN_PIXEL_CAP);
+    // The step at which a span of `a × b` (model units) holds `cap` pixels.
+    let capped = |a: f64, b: f64| (a.max(0.0) * b.max(0.0) / cap).sqrt();
     match model {
         SensorModel::Equirect => {
             let rot = DMat3::IDENTITY;
@@ -740,6 +758,7 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
             let step = step_from_occupancy(&ae, n, lo, hi)
                 .max((hi.0 - lo.0) / MAX_SIDE)
                 .max((hi.1 - lo.1) / (MAX_SIDE / 2.0))
+                .max(capped(TAU, hi.1 - lo.1))
                 .max(1e-6);
             let full = hi.0 - lo.0 > TAU - 3.0 * step.max(TAU / 720.0);
             let (width, ox) = if full {
@@ -786,6 +805,7 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
             let step = step_from_occupancy(&uv, n, lo, hi)
                 .max((hi.0 - lo.0) / MAX_SIDE)
                 .max((hi.1 - lo.1) / MAX_SIDE)
+                .max(capped(hi.0 - lo.0, hi.1 - lo.1))
                 .max(1e-9);
             Some(Projection {
                 model: Model::Perspective {
@@ -810,6 +830,7 @@ pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
             let step = step_from_occupancy(&xy, n, lo, hi)
                 .max((hi.0 - lo.0) / MAX_SIDE)
                 .max((hi.1 - lo.1) / MAX_SIDE)
+                .max(capped(hi.0 - lo.0, hi.1 - lo.1))
                 .max(1e-9);
             let depth0 = ortho_depth0(&pts, DVec3::Z) as f32;
             Some(Projection {

@@ -1403,3 +1403,43 @@ fn stability_cases_are_deterministic() {
         run_twice(&scans, &p, "room site");
     }
 }
+
+/// Points bunched in two tiny patches at opposite poles of a scanner placed between them (a
+/// guessed scanner position a million metres off) would ask for a 16384×8192 map; the map is
+/// capped at a few pixels per point, and so is a native grid declaring far more cells than
+/// points.
+#[test]
+fn bunched_points_and_sparse_grids_keep_maps_small() {
+    use mvao::scan::Grid;
+    use mvao::sensor::{setup, ProjectionChoice};
+    let mut pts = scattered(16_000, 5.0, 3);
+    for p in pts.iter_mut() {
+        p.z -= 1.0e6;
+    }
+    pts.extend((0..4000).map(|k| Vec3::new(0.001 * k as f32, 0.0, 1.0e6)));
+    let n = pts.len();
+    for choice in [
+        ProjectionChoice::Auto,
+        ProjectionChoice::Equirect,
+        ProjectionChoice::Perspective,
+        ProjectionChoice::Ortho,
+    ] {
+        let s = Scan::from_points("bunched", pts.clone());
+        let Ok(st) = setup(&s, choice) else {
+            continue;
+        };
+        let px = st.projection.width * st.projection.height;
+        assert!(px <= 4 * n + 1000, "{choice:?}: {px} pixels for {n} points");
+    }
+    let mut s = Scan::from_points("sparse_grid", scattered(5000, 5.0, 4));
+    s.grid = Some(Grid {
+        rows: 100_000,
+        cols: 100_000,
+        row: (0..5000).map(|k| k * 20).collect(),
+        col: (0..5000).map(|k| k * 20).collect(),
+    });
+    let st = setup(&s, ProjectionChoice::Auto).expect("resampled");
+    let px = st.projection.width * st.projection.height;
+    assert!(px <= 70_000, "{px} pixels for 5000 points");
+    assert!(st.reason.contains("resampled"), "{}", st.reason);
+}
