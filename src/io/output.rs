@@ -2,7 +2,7 @@
 //! preview picture of the AO map as the scanner saw it. Every file is written atomically.
 
 use super::atomic::write_atomic;
-use super::ply::{PlyFile, ScalarType};
+use super::ply::{PlyFile, PropertyKind, ScalarType};
 use crate::error::{Error, Result};
 use serde::Serialize;
 use std::path::Path;
@@ -47,27 +47,54 @@ pub fn write_result_ply(
         )));
     }
     let aof: Vec<f64> = ao.iter().map(|&a| a as f64).collect();
-    let has_rgb = ["red", "green", "blue"]
-        .iter()
-        .all(|c| ply.has_property("vertex", c));
-    let greys: Vec<f64> = ao.iter().map(|&a| grey(a, gamma) as f64).collect();
+    let kind = |p: &str| ply.property_kind("vertex", p);
+    let float = |k: Option<PropertyKind>| {
+        matches!(
+            k,
+            Some(PropertyKind::Scalar(ScalarType::F32 | ScalarType::F64))
+        )
+    };
+    // A float `ao` is a previous result and is replaced; any other `ao` is the input's own
+    // data and stays, with the result beside it under the first free name.
+    let ao_name = if kind("ao").is_none() || float(kind("ao")) {
+        "ao".to_string()
+    } else {
+        (1..)
+            .map(|k| format!("ao_{k}"))
+            .find(|n| kind(n).is_none())
+            .unwrap_or_default()
+    };
+    let channels = ["red", "green", "blue"];
+    let present = channels.iter().filter(|c| kind(c).is_some()).count();
+    let has_rgb = present == 3;
+    // Float colours in [0, 1] get greys on that scale.
+    let unit = has_rgb
+        && channels.iter().all(|c| float(kind(c)))
+        && channels.iter().all(|c| {
+            ply.scalar_column("vertex", c)
+                .is_some_and(|v| v.iter().all(|x| !(*x > 1.0)))
+        });
+    let scale = if unit { 1.0 / 255.0 } else { 1.0 };
+    let greys: Vec<f64> = ao.iter().map(|&a| grey(a, gamma) as f64 * scale).collect();
     let mut modulated: Vec<Vec<f64>> = Vec::new();
     if has_rgb && color == ColorMode::Modulate {
-        for c in ["red", "green", "blue"] {
+        for c in channels {
             let orig = ply.scalar_column("vertex", c).unwrap_or_default();
             modulated.push(
                 orig.iter()
                     .zip(&greys)
-                    .map(|(o, g)| o * g / 255.0)
+                    .map(|(o, g)| o * g / (255.0 * scale))
                     .collect(),
             );
         }
     }
-    let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![("ao", ScalarType::F32, &aof)];
-    for (k, c) in ["red", "green", "blue"].into_iter().enumerate() {
+    let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![(&ao_name, ScalarType::F32, &aof)];
+    for (k, c) in channels.into_iter().enumerate() {
         match (has_rgb, color) {
             (true, ColorMode::Keep) => {}
             (true, ColorMode::Modulate) => cols.push((c, ScalarType::U8, &modulated[k])),
+            // Only some channels: they are the input's data, not a colour to replace.
+            (false, _) if present > 0 => {}
             _ => cols.push((c, ScalarType::U8, &greys)),
         }
     }
@@ -181,6 +208,62 @@ mod tests {
         let q = dir.path().join("nan.ply");
         assert!(write_result_ply(&ply, &[f32::NAN, 1.0], 1.0, ColorMode::Keep, "t", &q).is_err());
         assert!(!q.exists());
+    }
+
+    /// An `ao` the input holds as integers is its own data: kept, with the result as `ao_1`.
+    /// A float `ao` (an earlier result) is replaced. Float colours on a 0–1 scale get greys on
+    /// that scale; a lone `red` is data, not a colour, and stays.
+    #[test]
+    fn existing_ao_float_colours_and_partial_colours() {
+        let dir = tempfile::tempdir().unwrap();
+        let xs = [0.0, 1.0];
+        let cols = |extra: &[(&'static str, ScalarType, &'static [f64])]| {
+            let mut c: Vec<(&str, ScalarType, &[f64])> = vec![
+                ("x", ScalarType::F32, &xs),
+                ("y", ScalarType::F32, &xs),
+                ("z", ScalarType::F32, &xs),
+            ];
+            c.extend_from_slice(extra);
+            PlyFile::from_vertex_columns(&c, &[]).unwrap()
+        };
+        let ao = [0.5f32, 1.0];
+        let run = |ply: &PlyFile, mode: ColorMode, name: &str| {
+            let p = dir.path().join(name);
+            write_result_ply(ply, &ao, 1.0, mode, "test", &p).unwrap();
+            PlyFile::read_path(&p).unwrap()
+        };
+        let o = run(
+            &cols(&[("ao", ScalarType::U8, &[3.0, 7.0])]),
+            ColorMode::Modulate,
+            "u8.ply",
+        );
+        assert_eq!(o.scalar_column("vertex", "ao").unwrap(), vec![3.0, 7.0]);
+        assert_eq!(o.scalar_column("vertex", "ao_1").unwrap(), vec![0.5, 1.0]);
+        let o = run(
+            &cols(&[("ao", ScalarType::F64, &[0.1, 0.2])]),
+            ColorMode::Modulate,
+            "f.ply",
+        );
+        assert_eq!(o.scalar_column("vertex", "ao").unwrap(), vec![0.5, 1.0]);
+        assert!(!o.has_property("vertex", "ao_1"));
+        let unit: &[(&str, ScalarType, &[f64])] = &[
+            ("red", ScalarType::F32, &[0.8, 0.4]),
+            ("green", ScalarType::F32, &[0.8, 0.4]),
+            ("blue", ScalarType::F32, &[0.8, 0.4]),
+        ];
+        let o = run(&cols(unit), ColorMode::Replace, "unit_replace.ply");
+        let r = o.scalar_column("vertex", "red").unwrap();
+        assert!((r[0] - 128.0 / 255.0).abs() < 1e-6 && r[1] == 1.0, "{r:?}");
+        let o = run(&cols(unit), ColorMode::Modulate, "unit_mod.ply");
+        let r = o.scalar_column("vertex", "red").unwrap();
+        assert!((r[0] - 0.8 * 128.0 / 255.0).abs() < 1e-6 && (r[1] - 0.4).abs() < 1e-6);
+        let o = run(
+            &cols(&[("red", ScalarType::U8, &[9.0, 9.0])]),
+            ColorMode::Replace,
+            "red.ply",
+        );
+        assert_eq!(o.scalar_column("vertex", "red").unwrap(), vec![9.0, 9.0]);
+        assert!(!o.has_property("vertex", "green"));
     }
 
     #[test]

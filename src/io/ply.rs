@@ -143,6 +143,18 @@ impl PlyFile {
         self.header.elements.iter().position(|e| e.name == name)
     }
 
+    /// The kind of property `prop` of element `element`, if both exist.
+    pub fn property_kind(&self, element: &str, prop: &str) -> Option<PropertyKind> {
+        self.header
+            .elements
+            .iter()
+            .find(|e| e.name == element)?
+            .props
+            .iter()
+            .find(|p| p.name == prop)
+            .map(|p| p.kind)
+    }
+
     /// Whether the element named `element` exists and has a property (scalar or list) named
     /// `prop`.
     pub fn has_property(&self, element: &str, prop: &str) -> bool {
