@@ -412,11 +412,6 @@ fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
             )));
         }
     }
-    for o in &cfg.only {
-        if !cat.iter().any(|c| &c.name == o) {
-            return Err(Error::Param(format!("--only {o}: no scan of that name")));
-        }
-    }
     Ok(())
 }
 
@@ -517,12 +512,31 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     obs.done("catalog", t0.elapsed().as_secs_f64());
     times.push(("catalog".into(), t0.elapsed().as_secs_f64()));
     bytes_read.push(("catalog".into(), input_bytes));
+    placer.check_pose_targets(cat.iter().map(|c| c.name.as_str()))?;
+    for o in &cfg.only {
+        if !cat.iter().any(|c| &c.name == o) {
+            return Err(Error::Param(format!("--only {o}: no scan of that name")));
+        }
+    }
     for (i, c) in cat.iter().enumerate() {
         if let Some(j) = cat[..i].iter().position(|d| d.key == c.key) {
-            return Err(Error::Param(format!(
-                "scans '{}' and '{}' would share the work-directory key '{}'; rename one",
-                cat[j].name, c.name, c.key
-            )));
+            let (a, b) = (&cfg.scans[cat[j].file], &cfg.scans[c.file]);
+            let same = std::fs::canonicalize(a)
+                .ok()
+                .is_some_and(|x| std::fs::canonicalize(b).ok() == Some(x));
+            return Err(Error::Param(if same && cat[j].index == c.index {
+                format!("{} is given twice", b.display())
+            } else {
+                format!(
+                    "scans '{}' ({}) and '{}' ({}) would share the work-directory key '{}': \
+                     rename one",
+                    cat[j].name,
+                    a.display(),
+                    c.name,
+                    b.display(),
+                    c.key
+                )
+            }));
         }
     }
 

@@ -159,6 +159,60 @@ fn alignment_mismatches_are_errors() {
     assert!(!out.exists());
 }
 
+/// `--pose` overrides the alignment beside the scans for its scan (whose entry then counts as
+/// given); a `--pose` or `--only` naming no scan is an error, as is a file given twice.
+#[test]
+fn pose_overrides_and_names_that_match_nothing() {
+    let d = tempfile::tempdir().unwrap();
+    let a = small_scan(d.path(), "a.ply", &dome(500));
+    let b = small_scan(d.path(), "b.ply", &dome(500));
+    let id = "[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]";
+    std::fs::write(
+        d.path().join("poses.json"),
+        format!("{{\"a.ply\": {id}, \"b.ply\": {id}}}"),
+    )
+    .unwrap();
+    let m = d.path().join("a_pose.txt");
+    std::fs::write(&m, "1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+    let out = d.path().join("out");
+    let pose = format!("a={}", s(&m));
+    let r = mvao(&["info", "--pose", &pose, &s(&a), &s(&b)]);
+    let text = String::from_utf8_lossy(&r.stdout);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(text.contains("--pose"), "{text}");
+    let ghost = format!("ghost={}", s(&m));
+    let err = fails(
+        &[
+            "merge".into(),
+            "-o".into(),
+            s(&out),
+            "--pose".into(),
+            ghost,
+            s(&a),
+            s(&b),
+        ],
+        "no input file or scan is named 'ghost'",
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
+    let r = mvao(&["prepare", "-o", &s(&out), "--only", "ghost", &s(&a), &s(&b)]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "{err}");
+    assert!(err.contains("--only ghost"), "{err}");
+    fails(
+        &[
+            "merge".into(),
+            "-o".into(),
+            s(&out),
+            "--align".into(),
+            s(&d.path().join("poses.json")),
+            s(&a),
+            s(&a),
+        ],
+        "a.ply",
+    );
+    assert!(!out.join("report.json").exists());
+}
+
 #[test]
 fn existing_outputs_need_force() {
     let d = tempfile::tempdir().unwrap();

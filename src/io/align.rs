@@ -208,6 +208,16 @@ pub fn find_alignment_beside(scans: &[PathBuf]) -> Result<Option<PathBuf>> {
 /// Errors: a scan without an entry, an entry naming a scan that was not given, an entry that
 /// appears twice, or two scans matching one entry.
 pub fn poses_for_scans(al: &Alignment, scans: &[PathBuf]) -> Result<Vec<DMat4>> {
+    poses_for_scans_beside(al, scans, &[])
+}
+
+/// [`poses_for_scans`] when the scans `placed` were also given but take their poses elsewhere
+/// (`--pose`, a sidecar): their entries count as given.
+pub fn poses_for_scans_beside(
+    al: &Alignment,
+    scans: &[PathBuf],
+    placed: &[PathBuf],
+) -> Result<Vec<DMat4>> {
     let err = |msg: String| Error::align(&al.path, msg);
 
     // Duplicate entries (same name after normalising separators and "./").
@@ -286,11 +296,17 @@ pub fn poses_for_scans(al: &Alignment, scans: &[PathBuf]) -> Result<Vec<DMat4>> 
         poses.push(al.entries[ei].pose);
     }
 
+    let placed_base: Vec<String> = placed
+        .iter()
+        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect();
     let unused: Vec<String> = al
         .entries
         .iter()
         .zip(&owner)
-        .filter(|(_, o)| o.is_none())
+        .zip(&entry_base)
+        .filter(|((_, o), b)| o.is_none() && !placed_base.contains(b))
+        .map(|(e, _)| e)
         .map(|(e, _)| format!("'{}'", e.file))
         .collect();
     match unused.len() {

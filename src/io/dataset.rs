@@ -119,7 +119,11 @@ impl Placer {
         if let Some(a) = &align_path {
             let al: Alignment = align::read_alignment_with(a, opts.allow_scale)?;
             let list: Vec<PathBuf> = needs_align.iter().map(|&i| paths[i].clone()).collect();
-            let poses = align::poses_for_scans(&al, &list)?;
+            let placed: Vec<PathBuf> = (0..paths.len())
+                .filter(|i| !needs_align.contains(i))
+                .map(|i| paths[i].clone())
+                .collect();
+            let poses = align::poses_for_scans_beside(&al, &list, &placed)?;
             for (&i, m) in needs_align.iter().zip(poses) {
                 file_pose[i] = Some((m, format!("alignment {}", a.display())));
             }
@@ -137,6 +141,27 @@ impl Placer {
             file_pose,
             alignment: align_path,
         })
+    }
+
+    /// An error for a `--pose` that names none of the input files and none of `scans` (the
+    /// names of every scan they hold).
+    pub fn check_pose_targets<'a>(
+        &self,
+        scans: impl Iterator<Item = &'a str> + Clone,
+    ) -> Result<()> {
+        for o in &self.opts.poses {
+            let hit = self.paths.iter().any(|p| names_file(&o.target, p))
+                || scans.clone().any(|n| n == o.target);
+            if !hit {
+                return Err(Error::Param(format!(
+                    "--pose {}={}: no input file or scan is named '{}'",
+                    o.target,
+                    o.file.display(),
+                    o.target
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// Number of input files.
@@ -312,6 +337,7 @@ impl Dataset {
             files.push(pf.file);
             progress();
         }
+        placer.check_pose_targets(scans.iter().map(|s| s.name.as_str()))?;
         let identity = pose_source
             .iter()
             .filter(|p| *p == "none (identity)")
