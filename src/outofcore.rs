@@ -711,11 +711,22 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 }
                 let v = prepare_view(s, prm.projection, &sp)?;
                 let (dmin, dmax) = depth_range(&v.depth);
+                let max_radius = v.radii.iter().copied().fold(0.0, f32::max);
+                if !(dmin.is_finite() && dmax.is_finite() && max_radius.is_finite()) {
+                    return Err(Error::scan(
+                        cfg.scans[fi].display().to_string(),
+                        format!(
+                            "scan {}: depths or point radii are not finite (depth {dmin}..{dmax} \
+                             m, largest radius {max_radius} m): coordinates out of usable range",
+                            s.name
+                        ),
+                    ));
+                }
                 let (_, no_sample) = v.point_ssao();
                 let proj = &v.sensor.projection;
                 let sum = Summary {
                     points: s.len(),
-                    max_radius: v.radii.iter().copied().fold(0.0, f32::max),
+                    max_radius,
                     depth_min: dmin,
                     depth_max: dmax,
                     ortho: proj.sensor_model() == crate::projection::SensorModel::Ortho,

@@ -248,6 +248,12 @@ pub fn ssao_params(
         None => {
             let d = diag();
             let r = (d / 50.0) as f32;
+            if !(r > 0.0 && r.is_finite()) {
+                return Err(Error::Param(format!(
+                    "no default SSAO radius: the scans' robust diagonal is {d} m (every point at \
+                     one place, or coordinates beyond single precision); give --radius in metres"
+                )));
+            }
             note += &format!("radius = scene diagonal {d:.4} m / 50 = {r:.4} m; ");
             r
         }

@@ -213,6 +213,34 @@ fn pose_overrides_and_names_that_match_nothing() {
     assert!(!out.join("report.json").exists());
 }
 
+/// Coordinates scaled far past anything scanned, or into nanometres, are refused naming the
+/// file (by `merge` and by `prepare`); a scan with every point at one place needs a radius.
+#[test]
+fn coordinates_out_of_usable_range() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    for (name, scale) in [("huge.ply", 1e25), ("tiny.ply", 1e-25)] {
+        let pts: Vec<[f64; 3]> = dome(500)
+            .iter()
+            .map(|p| [p[0] * scale, p[1] * scale, p[2] * scale])
+            .collect();
+        let p = small_scan(d.path(), name, &pts);
+        for cmd in ["merge", "prepare"] {
+            let r = mvao(&[cmd, "-q", "-o", &s(&out), &s(&p)]);
+            let err = String::from_utf8_lossy(&r.stderr);
+            assert_eq!(r.status.code(), Some(2), "{cmd} {name}: {err}");
+            assert!(err.contains(name) && !err.contains("panicked"), "{err}");
+        }
+    }
+    let same = small_scan(d.path(), "same.ply", &[[0.3, 0.2, -1.0]; 50]);
+    let err = fails(
+        &["merge".into(), "-o".into(), s(&out), s(&same)],
+        "give --radius",
+    );
+    assert!(err.contains("one place"), "{err}");
+    assert!(!out.join("report.json").exists());
+}
+
 #[test]
 fn existing_outputs_need_force() {
     let d = tempfile::tempdir().unwrap();
