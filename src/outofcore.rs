@@ -558,6 +558,13 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let prm = &cfg.compute;
     let (sp, note) = crate::pipeline::ssao_params(prm, || robust_diagonal(&samples))?;
     drop(samples);
+    // The report is written last and marks a complete set: a rerun over an earlier one drops
+    // the old report first, so a run that stops half way does not leave new outputs beside
+    // old ones under a report that vouches for them.
+    let old_report = cfg.out_dir.join("report.json");
+    if !cfg.dry_run && !cfg.prepare_only && cfg.only.is_empty() && old_report.exists() {
+        std::fs::remove_file(&old_report).map_err(|e| Error::io(&old_report, e))?;
+    }
     let tmax = sp.tmax;
 
     // The plan. Pair skipping uses the SSAO reach here; eq. 7's reach (radii) is added once

@@ -265,6 +265,35 @@ fn existing_outputs_need_force() {
         .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
         .collect();
     assert!(stray.is_empty());
+    // A forced rerun that fails half way (an output it cannot replace) leaves no report
+    // beside its new outputs.
+    let b = small_scan(d.path(), "b.ply", &dome(2000));
+    let both = [
+        "merge",
+        "-q",
+        "--radius",
+        "0.3",
+        "-o",
+        &s(&out),
+        &s(&a),
+        &s(&b),
+        "--force",
+    ];
+    assert!(mvao(&both).status.success());
+    assert!(out.join("report.json").exists());
+    std::fs::remove_file(out.join("b.mvao.ply")).unwrap();
+    std::fs::create_dir(out.join("b.mvao.ply")).unwrap();
+    std::fs::write(out.join("b.mvao.ply").join("keep"), b"x").unwrap();
+    let mut other = both.to_vec();
+    other[3] = "0.5";
+    let r = mvao(&other);
+    assert_eq!(
+        r.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    assert!(!out.join("report.json").exists());
 }
 
 #[test]
