@@ -558,6 +558,16 @@ fn truncated_and_corrupt_files_are_clean_errors() {
     flipped[200_000] ^= 0x55;
     let msg = expect_clean_error(&flipped, dir.path(), "flip");
     assert!(msg.contains("scan pumpA"), "{msg}");
+    // A zero scale on a scaled-integer coordinate (same length, so the XML stays valid).
+    let at = good
+        .windows(31)
+        .position(|w| w == b"scale=\"9.9999999999999995e-007\"")
+        .expect("cartesianX scale in the fixture");
+    let mut zero = good.clone();
+    zero[at..at + 31].copy_from_slice(b"scale=\"0.0000000000000000e+000\"");
+    fix_crcs(&mut zero);
+    let msg = expect_clean_error(&zero, dir.path(), "scale0");
+    assert!(msg.contains("cartesianX") && msg.contains("scale 0"), "{msg}");
     // Not an E57 file at all.
     let msg = expect_clean_error(b"ply\nformat ascii 1.0\nend_header\n", dir.path(), "ply");
     assert!(msg.contains("not a readable E57 file"), "{msg}");

@@ -534,6 +534,18 @@ fn read_cloud(path: &Path, file_len: u64, pc: &PointCloud, name: String) -> Resu
             "has neither Cartesian (cartesianX/Y/Z) nor spherical coordinates".into(),
         ));
     }
+    // A scaled integer with a zero or non-finite scale holds no value (the standard asks for
+    // a non-zero scale).
+    for &k in cart.iter().chain(sph.iter()).flatten() {
+        if let RecordDataType::ScaledInteger { scale, offset, .. } = proto[k].data_type {
+            if !(scale != 0.0 && scale.is_finite() && offset.is_finite()) {
+                return Err(fail(format!(
+                    "{} is a scaled integer with scale {scale} and offset {offset}",
+                    record_label(&proto[k].name)
+                )));
+            }
+        }
+    }
 
     // Decode. The capacity is bounded by what the file can hold, not by the stored count.
     let cap = pc.records.min(file_len.saturating_mul(8) / bits + 1) as usize;
