@@ -567,7 +567,10 @@ fn truncated_and_corrupt_files_are_clean_errors() {
     zero[at..at + 31].copy_from_slice(b"scale=\"0.0000000000000000e+000\"");
     fix_crcs(&mut zero);
     let msg = expect_clean_error(&zero, dir.path(), "scale0");
-    assert!(msg.contains("cartesianX") && msg.contains("scale 0"), "{msg}");
+    assert!(
+        msg.contains("cartesianX") && msg.contains("scale 0"),
+        "{msg}"
+    );
     // Not an E57 file at all.
     let msg = expect_clean_error(b"ply\nformat ascii 1.0\nend_header\n", dir.path(), "ply");
     assert!(msg.contains("not a readable E57 file"), "{msg}");

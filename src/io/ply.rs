@@ -1159,6 +1159,11 @@ fn parse_header(src: &mut Source) -> Result<Header> {
                         "line {line_no}: element count '{count}' is not a non-negative integer"
                     ))
                 })?;
+                if elements.iter().any(|e| e.name == *name) {
+                    return Err(src.err(format!(
+                        "line {line_no}: element '{name}' is declared twice"
+                    )));
+                }
                 elements.push(ElementDef {
                     name: (*name).to_string(),
                     count,
@@ -1202,6 +1207,12 @@ fn parse_header(src: &mut Source) -> Result<Header> {
                         )
                     }
                 };
+                if el.props.iter().any(|p| p.name == prop.name) {
+                    return Err(src.err(format!(
+                        "line {line_no}: element '{}' declares property '{}' twice",
+                        el.name, prop.name
+                    )));
+                }
                 el.props.push(prop);
             }
             "end_header" => break,
@@ -2042,6 +2053,18 @@ mod tests {
         assert_eq!(
             format_err(b"ply\nformat ascii 1.0\nvertex 3\nend_header\n"),
             "line 3: unknown header keyword 'vertex'"
+        );
+        assert_eq!(
+            format_err(
+                b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float x\nend_header\n"
+            ),
+            "line 5: element 'vertex' declares property 'x' twice"
+        );
+        assert_eq!(
+            format_err(
+                b"ply\nformat ascii 1.0\nelement vertex 0\nelement face 0\nelement vertex 0\nend_header\n"
+            ),
+            "line 5: element 'vertex' is declared twice"
         );
         let long = format!("ply\ncomment {}\n", "x".repeat(100_000));
         assert!(format_err(long.as_bytes()).contains("header line longer than"));
