@@ -207,9 +207,13 @@ fn damaged_products_are_errors_and_not_fresh() {
     let pts = d.join(&e.products.points.name);
     let good_maps = fs::read(&maps).unwrap();
     let good_pts = fs::read(&pts).unwrap();
+    let entry_file = manifest::entry_path(d, "k");
+    let good_entry_file = fs::read(&entry_file).unwrap();
+    // A failed load drops the entry: restoring puts it back too.
     let restore = || {
         fs::write(&maps, &good_maps).unwrap();
         fs::write(&pts, &good_pts).unwrap();
+        fs::write(&entry_file, &good_entry_file).unwrap();
     };
 
     // One flipped bit in the middle of the maps.
@@ -218,8 +222,13 @@ fn damaged_products_are_errors_and_not_fresh() {
     b[mid] ^= 0x10;
     fs::write(&maps, &b).unwrap();
     let err = load_view(d, "k").unwrap_err().to_string();
-    assert!(err.contains("checksum"), "{err}");
+    assert!(
+        err.contains("checksum") && err.contains("run again"),
+        "{err}"
+    );
     assert!(load_maps_for_merge(d, "k").is_err());
+    // The damaged product's entry is gone: the next run recomputes instead of failing again.
+    assert!(!Manifest::load(d).is_fresh("k", &[&input], &prm));
     restore();
 
     // Truncated products: errors, and the quick check already sees the size.

@@ -313,12 +313,9 @@ fn warp_valid(w: &Warp) -> bool {
 /// caller recomputes): no entry, another mvao version, a missing, truncated or corrupt product.
 pub fn load_view(dir: &Path, key: &str) -> Result<PreparedView> {
     let e = current_entry(dir, key)?;
-    let pts = read_points(dir, &e)?;
+    let pts = forget_on_damage(dir, key, read_points(dir, &e))?;
+    let maps = forget_on_damage(dir, key, read_maps(dir, &e))?;
     let meta = e.products.view;
-    let (mpath, mbytes) = read_product(dir, &e.products.maps)?;
-    let maps = exr_io::decode_maps(&mbytes, &mpath, Some(meta.points), true)?;
-    drop(mbytes);
-    check_map_size(&mpath, &maps.gbuf, &meta.projection)?;
     Ok(PreparedView {
         sensor: SensorSetup {
             projection: meta.projection,
@@ -431,11 +428,8 @@ impl MergeMaps {
 /// cheaper than [`load_view`] when scan j is only a partner of other scans.
 pub fn load_maps_for_merge(dir: &Path, key: &str) -> Result<MergeMaps> {
     let e = current_entry(dir, key)?;
+    let maps = forget_on_damage(dir, key, read_maps(dir, &e))?;
     let meta = e.products.view;
-    let (mpath, mbytes) = read_product(dir, &e.products.maps)?;
-    let maps = exr_io::decode_maps(&mbytes, &mpath, Some(meta.points), true)?;
-    drop(mbytes);
-    check_map_size(&mpath, &maps.gbuf, &meta.projection)?;
     let n = maps.gbuf.width * maps.gbuf.height;
     Ok(MergeMaps {
         projection: meta.projection,
@@ -451,7 +445,35 @@ pub fn load_maps_for_merge(dir: &Path, key: &str) -> Result<MergeMaps> {
 /// Loads `key`'s per-point products (radius, pixel, depth, grid pixel), checked against its
 /// entry and against the map size.
 pub fn load_points(dir: &Path, key: &str) -> Result<points::Points> {
-    read_points(dir, &current_entry(dir, key)?)
+    let e = current_entry(dir, key)?;
+    forget_on_damage(dir, key, read_points(dir, &e))
+}
+
+/// Reads and checks the maps of an entry.
+fn read_maps(dir: &Path, e: &Entry) -> Result<exr_io::Maps> {
+    let (mpath, mbytes) = read_product(dir, &e.products.maps)?;
+    let maps = exr_io::decode_maps(&mbytes, &mpath, Some(e.products.view.points), true)?;
+    drop(mbytes);
+    check_map_size(&mpath, &maps.gbuf, &e.products.view.projection)?;
+    Ok(maps)
+}
+
+/// A damaged product (truncated, altered, not what its entry says) is never used again: the
+/// key's entry is removed, so the next run recomputes its products instead of failing on them.
+fn forget_on_damage<T>(dir: &Path, key: &str, r: Result<T>) -> Result<T> {
+    match r {
+        Err(Error::Format { path, msg }) => {
+            let _ = std::fs::remove_file(manifest::entry_path(dir, key));
+            Err(Error::Format {
+                path,
+                msg: format!(
+                    "{msg}; the products of scan key '{key}' are dropped: run again to \
+                     recompute them"
+                ),
+            })
+        }
+        r => r,
+    }
 }
 
 /// Reads and checks the per-point products of an entry.
