@@ -481,6 +481,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                     format!("scan {} has no point with finite coordinates", s.name),
                 ));
             }
+            crate::io::source::check_usable(s, &cfg.scans[fi])?;
             let (lo, hi) = world_bounds(s);
             occ.push(Occupancy::of(s, (hi - lo).length()));
             // The same subsample `robust_diagonal` would take, so the default radius equals

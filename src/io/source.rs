@@ -263,6 +263,38 @@ pub const MIN_LOCAL: f32 = 1e-9;
 /// Coordinates beyond this (metres) lose millimetres in f32, so the scan is re-centred.
 pub const RECENTRE_ABOVE: f64 = 1e5;
 
+/// An error naming `path` when scan `s`'s local coordinates are out of the range shading can
+/// use: beyond [`MAX_LOCAL`], or all within [`MIN_LOCAL`] of the origin.
+pub fn check_usable(s: &Scan, path: &Path) -> Result<()> {
+    let far = s
+        .points
+        .par_iter()
+        .filter(|v| v.is_finite())
+        .map(|v| v.abs().max_element())
+        .reduce(|| 0.0, f32::max);
+    if far < MIN_LOCAL && !s.points.is_empty() {
+        return Err(Error::format(
+            path,
+            format!(
+                "scan {}: every point lies within {MIN_LOCAL:e} m of the scanner (or the scan's \
+                 centre): too small to shade in single precision",
+                s.name
+            ),
+        ));
+    }
+    if far > MAX_LOCAL {
+        return Err(Error::format(
+            path,
+            format!(
+                "scan {}: points lie {far:e} m from the scanner (or the scan's centre); beyond \
+                 {MAX_LOCAL:e} m the squared distances of single-precision shading overflow",
+                s.name
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Builds a [`Scan`] from what a reader handed over. Returns it with the offset subtracted
 /// from the file coordinates: the declared scanner position, else zero for ordinary
 /// scanner-local data, else (coordinates beyond [`RECENTRE_ABOVE`], scanner unknown) the
@@ -292,31 +324,6 @@ pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
     // An unusable normal becomes zero and is re-estimated downstream.
     let unit = |v: &Vec3| v.try_normalize().unwrap_or(Vec3::ZERO);
     let all: Vec<Vec3> = raw.xyz.par_iter().map(local).collect();
-    let far = all
-        .par_iter()
-        .filter(|v| v.is_finite())
-        .map(|v| v.abs().max_element())
-        .reduce(|| 0.0, f32::max);
-    if far < MIN_LOCAL && all.iter().any(|v| v.is_finite()) {
-        return Err(Error::format(
-            path,
-            format!(
-                "scan {}: every point lies within {MIN_LOCAL:e} m of the scanner (or the scan's \
-                 centre): too small to shade in single precision",
-                raw.name
-            ),
-        ));
-    }
-    if far > MAX_LOCAL {
-        return Err(Error::format(
-            path,
-            format!(
-                "scan {}: points lie {far:e} m from the scanner (or the scan's centre); beyond \
-                 {MAX_LOCAL:e} m the squared distances of single-precision shading overflow",
-                raw.name
-            ),
-        ));
-    }
     let (points, source_index, normals, cells, skipped) = if all.par_iter().all(|v| v.is_finite()) {
         // The usual case: every vertex is a point.
         let points = all;
