@@ -451,6 +451,17 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut times: Vec<(String, f64)> = Vec::new();
     let mut bytes_read: Vec<(String, u64)> = Vec::new();
     let placer = Placer::new(&cfg.scans, &cfg.place)?;
+    for (d, flag) in [
+        (Some(&cfg.out_dir), "-o"),
+        (cfg.work_dir.as_ref(), "--work"),
+    ] {
+        if let Some(d) = d.filter(|d| d.exists() && !d.is_dir()) {
+            return Err(Error::Param(format!(
+                "{flag} {}: exists and is not a directory",
+                d.display()
+            )));
+        }
+    }
     let work_dir = cfg
         .work_dir
         .clone()
@@ -565,6 +576,10 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let old_report = cfg.out_dir.join("report.json");
     if !cfg.dry_run && !cfg.prepare_only && cfg.only.is_empty() && old_report.exists() {
         std::fs::remove_file(&old_report).map_err(|e| Error::io(&old_report, e))?;
+    }
+    if !cfg.dry_run {
+        // Temporary files of an earlier run that was killed (their writer is gone).
+        crate::products::clean_stale_temps(&cfg.out_dir, &mut warnings);
     }
     let tmax = sp.tmax;
 

@@ -46,9 +46,12 @@ const MAX_SIDE: f64 = 16384.0;
 const MAX_PIXELS_PER_POINT: f64 = 4.0;
 /// The pixel cap for scans of few points.
 const MIN_PIXEL_CAP: f64 = 65536.0;
-/// A native grid with more cells per valid point than this is resampled instead (a header
-/// declaring a grid far larger than its points).
-const MAX_GRID_CELLS_PER_POINT: u64 = 16;
+/// A native grid with more cells per valid point than this, and more than
+/// [`MIN_GRID_CELL_CAP`] cells, is resampled instead (a header declaring a grid far larger
+/// than its points). A scan that is mostly sky is sparse too, so the bound is loose.
+const MAX_GRID_CELLS_PER_POINT: u64 = 64;
+/// Native grids up to this many cells are kept however few points they hold.
+const MIN_GRID_CELL_CAP: u64 = 1 << 24;
 /// A grid fit worse than this (RMS pixels) is not used; the map is rebuilt from the points.
 const MAX_FIT_RMS: f64 = 3.0;
 /// Points used for fitting (a deterministic stride subsample beyond this).
@@ -68,7 +71,7 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
     };
     let sparse = scan.grid.as_ref().is_some_and(|g| {
         u64::from(g.rows) * u64::from(g.cols)
-            > (MAX_GRID_CELLS_PER_POINT * scan.len() as u64).max(MIN_PIXEL_CAP as u64)
+            > (MAX_GRID_CELLS_PER_POINT * scan.len() as u64).max(MIN_GRID_CELL_CAP)
     });
     if let Some(grid) = scan.grid.as_ref().filter(|_| !sparse) {
         let mut fits = fit_grid(scan, choice);

@@ -241,6 +241,31 @@ fn coordinates_out_of_usable_range() {
     assert!(!out.join("report.json").exists());
 }
 
+/// An output path that is a file, a sidecar of prose, and two sidecars for one scan.
+#[test]
+fn output_paths_and_sidecars() {
+    let d = tempfile::tempdir().unwrap();
+    let a = small_scan(d.path(), "a.ply", &dome(500));
+    let file = d.path().join("afile");
+    std::fs::write(&file, b"x").unwrap();
+    fails(
+        &["merge".into(), "-o".into(), s(&file), s(&a)],
+        "exists and is not a directory",
+    );
+    std::fs::write(d.path().join("a.txt"), "scanned on Tuesday\n").unwrap();
+    let out = d.path().join("out");
+    fails(
+        &["merge".into(), "-o".into(), s(&out), s(&a)],
+        "'scanned' is not a finite number",
+    );
+    std::fs::write(d.path().join("a.mat"), "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1").unwrap();
+    fails(
+        &["merge".into(), "-o".into(), s(&out), s(&a)],
+        "several sidecar pose files",
+    );
+    assert_eq!(std::fs::read(&file).unwrap(), b"x");
+}
+
 #[test]
 fn existing_outputs_need_force() {
     let d = tempfile::tempdir().unwrap();

@@ -1442,4 +1442,14 @@ fn bunched_points_and_sparse_grids_keep_maps_small() {
     let px = st.projection.width * st.projection.height;
     assert!(px <= 70_000, "{px} pixels for 5000 points");
     assert!(st.reason.contains("resampled"), "{}", st.reason);
+    // A scan that is mostly sky keeps its grid.
+    let mut sky = Scan::from_points("sky", scattered(1000, 5.0, 5));
+    sky.grid = Some(Grid {
+        rows: 200,
+        cols: 400,
+        row: (0..1000).map(|k| k / 10).collect(),
+        col: (0..1000).map(|k| k % 10).collect(),
+    });
+    let st = setup(&sky, ProjectionChoice::Auto).expect("sky");
+    assert!(!st.reason.contains("far more cells"), "{}", st.reason);
 }

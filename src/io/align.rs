@@ -151,6 +151,32 @@ pub fn sidecar_of(scan: &Path) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
+/// An error when `scan` has both a `.mat` and a `.txt` sidecar (which one holds its pose?).
+pub fn check_one_sidecar(scan: &Path) -> Result<()> {
+    let found: Vec<PathBuf> = ["mat", "MAT", "txt", "TXT"]
+        .iter()
+        .map(|e| scan.with_extension(e))
+        .filter(|p| p.is_file())
+        .collect();
+    // A case-insensitive file system finds one file under both spellings.
+    let distinct = found
+        .iter()
+        .filter_map(|p| std::fs::canonicalize(p).ok())
+        .collect::<std::collections::BTreeSet<_>>();
+    if distinct.len() > 1 {
+        return Err(Error::Param(format!(
+            "{}: several sidecar pose files ({}); keep one or give --pose",
+            scan.display(),
+            found
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    Ok(())
+}
+
 /// Looks for alignment files (`.conf`, `.mlp`, `.json`, case-insensitive; hidden files skipped)
 /// in the directories holding `scans`. Exactly one candidate → `Some(it)`; none → `None`;
 /// several → [`Error::Param`] listing them and asking for `--align`.
@@ -696,6 +722,10 @@ fn matrix_from_row_major<T>(
     items: &[T],
     num: impl Fn(&T) -> std::result::Result<f64, String>,
 ) -> std::result::Result<DMat4, String> {
+    // Something that is not a number is named first: prose has the wrong count too.
+    for it in items.iter().take(17) {
+        num(it)?;
+    }
     if items.len() != 16 {
         return Err(format!("expected 16 numbers, found {}", items.len()));
     }

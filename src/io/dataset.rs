@@ -100,6 +100,9 @@ impl Placer {
             std::fs::metadata(p).map_err(|e| Error::io(p, e))?;
         }
         let by_file = |p: &Path| opts.poses.iter().any(|o| names_file(&o.target, p));
+        for p in paths.iter().filter(|p| !by_file(p)) {
+            align::check_one_sidecar(p)?;
+        }
         let sidecar: Vec<Option<PathBuf>> = paths
             .iter()
             .map(|p| (!by_file(p)).then(|| align::sidecar_of(p)).flatten())
