@@ -207,6 +207,11 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
         "no reloads under the budget: {loads}"
     );
     let peak = r["peak_rss_bytes"].as_u64().unwrap();
+    eprintln!(
+        "peak {} MiB under a {} MiB budget",
+        peak >> 20,
+        budget >> 20
+    );
     assert!(
         peak as f64 <= budget as f64 * 1.1,
         "peak {} MiB over the {} MiB budget",

@@ -2,7 +2,7 @@
 //! radii `rad(p) = 2·sqrt(d_k²/k)` with `d_k` the distance to the k-th nearest neighbour
 //! (k = 32), from one k-d tree query per point.
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3, Vec3A};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
@@ -114,37 +114,52 @@ where
     if n == 0 || cells == 0 || grid.row.len() != n {
         return estimate(points, need_normals, toward);
     }
+    // Positions in grid order (NaN where empty) beside the point each cell holds: a window
+    // row is then one contiguous run of 16-byte loads instead of two dependent gathers.
     let mut at = vec![u32::MAX; cells];
-    for i in 0..n {
+    let mut gp = vec![Vec3A::NAN; cells];
+    for (i, p) in points.iter().enumerate() {
         let c = grid.row[i] as usize * cols as usize + grid.col[i] as usize;
         if c < cells {
             at[c] = i as u32;
+            gp[c] = Vec3A::from(*p);
         }
     }
     let k = K_RADIUS.min(n);
     let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
-        // Candidates packed as (squared distance bits << 32) | index: squared distances are
-        // non-negative, so their bits order like the values and selection compares integers.
-        let mut cand = [0u64; ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize];
-        let mut scratch: Scratch = [[0; SCRATCH]; 2];
+        // Candidates as squared-distance bits (non-negative floats order like their bits, so
+        // selection compares integers); with normals, packed over the point index
+        // `(bits << 32) | index` so that ties break the same way every time.
+        let mut keys = [0u32; WINDOW];
+        let mut cand = [0u64; WINDOW];
+        let mut scratch32: Scratch<u32> = [[0; SCRATCH]; 2];
+        let mut scratch: Scratch<u64> = [[0; SCRATCH]; 2];
         for (o, r) in rad.iter_mut().enumerate() {
             let i = ci * CHUNK + o;
-            let p = points[i];
+            let p = Vec3A::from(points[i]);
             let (r0, c0) = (grid.row[i] as i64, grid.col[i] as i64);
             let mut m;
             let mut half = GRID_R0;
             loop {
                 m = 0;
+                let (ca, cb) = (
+                    (c0 - half).max(0) as usize,
+                    (c0 + half).min(cols - 1) as usize,
+                );
                 for rr in (r0 - half).max(0)..=(r0 + half).min(rows - 1) {
-                    let row = &at[(rr * cols) as usize..((rr + 1) * cols) as usize];
-                    let (ca, cb) = ((c0 - half).max(0) as usize, (c0 + half).min(cols - 1));
-                    for &j in row[ca..=cb as usize].iter() {
-                        if j != u32::MAX {
-                            let d2 = points[j as usize].distance_squared(p).max(0.0);
+                    let row = (rr * cols) as usize;
+                    let (qs, js) = (&gp[row + ca..=row + cb], &at[row + ca..=row + cb]);
+                    for (q, &j) in qs.iter().zip(js) {
+                        // In the order of `Vec3::distance_squared` (the k-d tree path's).
+                        let d = *q - p;
+                        let d2 = d.x * d.x + d.y * d.y + d.z * d.z;
+                        // Empty cells are NaN: written, then overwritten by the next one.
+                        keys[m] = d2.to_bits();
+                        if need_normals {
                             cand[m] = (u64::from(d2.to_bits()) << 32) | u64::from(j);
-                            m += 1;
                         }
+                        m += usize::from(j != u32::MAX);
                     }
                 }
                 if m >= k || half >= GRID_RMAX {
@@ -153,24 +168,25 @@ where
                 half += 2;
             }
             let kk = k.min(m).max(1);
-            let c = &mut cand[..m];
-            if m > 0 {
-                select(c, kk - 1, &mut scratch);
-            }
-            let dk = c
-                .get(kk - 1)
-                .map(|&x| f32::from_bits((x >> 32) as u32).sqrt())
-                .unwrap_or(0.0);
+            let dk = if m == 0 {
+                0.0
+            } else if need_normals {
+                select(&mut cand[..m], kk - 1, &mut scratch);
+                f32::from_bits((cand[kk - 1] >> 32) as u32).sqrt()
+            } else {
+                select(&mut keys[..m], kk - 1, &mut scratch32);
+                f32::from_bits(keys[kk - 1]).sqrt()
+            };
             *r = radius_from_dk(dk, k);
             if !nrm.is_empty() {
                 let kn = K_NORMAL.min(m);
-                let c = &mut c[..kk.min(m)];
+                let c = &mut cand[..kk.min(m)];
                 if kn > 0 && kn < c.len() {
                     select(c, kn - 1, &mut scratch);
                 }
                 nrm[o] = pca_normal(
                     c[..kn].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
-                    toward(p),
+                    toward(points[i]),
                 );
             }
         }
@@ -184,8 +200,11 @@ const SCRATCH: usize = 256;
 
 const _: () = assert!(((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize <= SCRATCH);
 
+/// Cells of the largest window.
+const WINDOW: usize = ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize;
+
 /// Two partition buffers for [`select`], kept across calls.
-type Scratch = [[u64; SCRATCH]; 2];
+type Scratch<T> = [[T; SCRATCH]; 2];
 
 /// Reorders `v` so that `v[k]` is the value a sort would put there, with no larger value
 /// before it and no smaller after it (quickselect).
@@ -196,7 +215,7 @@ type Scratch = [[u64; SCRATCH]; 2];
 /// value is copied to both buffers and only the count of its side advances: which side a
 /// distance falls on is unpredictable, and a mispredicted branch per value cost more than the
 /// copies (about 100 mispredictions per point for the two selections of a 9×9 window).
-fn select(v: &mut [u64], k: usize, scratch: &mut Scratch) {
+fn select<T: Copy + Ord>(v: &mut [T], k: usize, scratch: &mut Scratch<T>) {
     let (mut lo, mut hi) = (0usize, v.len());
     if k >= hi {
         return;
@@ -357,6 +376,76 @@ mod tests {
                 assert!(v[..k].iter().all(|&x| x <= v[k]));
                 assert!(v[k + 1..].iter().all(|&x| x >= v[k]));
             }
+        }
+    }
+
+    /// The grid path against a brute-force reading of its own rule: the window grows from
+    /// `GRID_R0` until it holds k points; the k-th smallest squared distance gives the radius and
+    /// the 16 nearest (ties by index) the normal. Empty cells, edges and duplicates included.
+    #[test]
+    fn grid_windows_match_brute_force() {
+        let (rows, cols) = (23u32, 31u32);
+        let mut state = 0x1234_5678_9ABC_DEF1u64;
+        let mut rnd = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (mut pts, mut row, mut col) = (Vec::new(), Vec::new(), Vec::new());
+        for r in 0..rows {
+            for c in 0..cols {
+                // A sparse band of rows, so some windows must grow past GRID_R0.
+                let keep = if (8..15).contains(&r) { 0.15 } else { 0.8 };
+                if rnd() > keep {
+                    continue;
+                }
+                let z = if rnd() < 0.02 { 0.0 } else { 0.05 * rnd() };
+                pts.push(Vec3::new(c as f32 * 0.01, r as f32 * 0.012, -2.0 + z));
+                row.push(r);
+                col.push(c);
+            }
+        }
+        // One exact duplicate of a point's position.
+        pts[7] = pts[6];
+        let grid = crate::scan::Grid {
+            rows,
+            cols,
+            row: row.clone(),
+            col: col.clone(),
+        };
+        let toward = |p: Vec3| (-p).normalize_or_zero();
+        let (none, r_only) = estimate_grid(&pts, &grid, false, toward);
+        let (nrm, r_both) = estimate_grid(&pts, &grid, true, toward);
+        assert!(none.is_none());
+        let nrm = nrm.unwrap();
+        let k = K_RADIUS.min(pts.len());
+        for i in 0..pts.len() {
+            let mut half = GRID_R0;
+            let near = loop {
+                let mut near: Vec<(u32, u32)> = (0..pts.len())
+                    .filter(|&j| {
+                        (row[j] as i64 - row[i] as i64).abs() <= half
+                            && (col[j] as i64 - col[i] as i64).abs() <= half
+                    })
+                    .map(|j| (pts[j].distance_squared(pts[i]).to_bits(), j as u32))
+                    .collect();
+                near.sort_unstable();
+                if near.len() >= k || half >= GRID_RMAX {
+                    break near;
+                }
+                half += 2;
+            };
+            let kk = k.min(near.len()).max(1);
+            let want = radius_from_dk(f32::from_bits(near[kk - 1].0).sqrt(), k);
+            assert_eq!(r_only[i].to_bits(), want.to_bits(), "radius of point {i}");
+            assert_eq!(r_both[i].to_bits(), want.to_bits(), "radius of point {i}");
+            let kn = K_NORMAL.min(near.len());
+            let n = pca_normal(
+                near[..kn].iter().map(|&(_, j)| pts[j as usize]),
+                toward(pts[i]),
+            );
+            assert!((nrm[i] - n).length() < 1e-6, "normal of point {i}");
         }
     }
 

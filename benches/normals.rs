@@ -1,0 +1,38 @@
+//! Radii (and PCA normals) from the native grid of one 1440×720 equirect suite station, best
+//! of five: `cargo bench --bench normals`.
+
+use mvao::projection::SensorModel;
+use mvao::scan::normals;
+use mvao::synth::{scan_scene, station_layout, SceneKind};
+use std::time::Instant;
+
+fn main() {
+    let kind = SceneKind::Suite { rooms: 2 };
+    let st = station_layout(kind, SensorModel::Equirect, 8, 1440, 720)[5];
+    let s = scan_scene(&kind.scene(), &st, 0.002, 0, "s0");
+    let grid = s.grid.as_ref().expect("synthetic scans are gridded");
+    let toward = |p: glam::Vec3| (-p).normalize_or_zero();
+    // `-- once`: one run of each (for an instruction count under callgrind).
+    let runs = if std::env::args().any(|a| a == "once") {
+        1
+    } else {
+        5
+    };
+    for need in [false, true] {
+        let mut best = f64::INFINITY;
+        let mut sum = 0.0f64;
+        for _ in 0..runs {
+            let t = Instant::now();
+            let (n, r) = normals::estimate_grid(&s.points, grid, need, toward);
+            best = best.min(t.elapsed().as_secs_f64());
+            sum = r.iter().map(|&x| x as f64).sum::<f64>()
+                + n.map_or(0.0, |n| n.iter().map(|v| v.x as f64).sum());
+        }
+        println!(
+            "grid {}: {best:.3} s for {} points = {:.2} M points/s (checksum {sum:.6})",
+            if need { "radii+normals" } else { "radii" },
+            s.len(),
+            s.len() as f64 / best / 1e6
+        );
+    }
+}
