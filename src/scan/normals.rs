@@ -135,6 +135,7 @@ where
         let mut cand = [0u64; WINDOW];
         let mut scratch32: Scratch<u32> = [[0; SCRATCH]; 2];
         let mut scratch: Scratch<u64> = [[0; SCRATCH]; 2];
+        let mut guess = 0.0f32;
         for (o, r) in rad.iter_mut().enumerate() {
             let i = ci * CHUNK + o;
             let p = Vec3A::from(points[i]);
@@ -174,8 +175,20 @@ where
                 select(&mut cand[..m], kk - 1, &mut scratch);
                 f32::from_bits((cand[kk - 1] >> 32) as u32).sqrt()
             } else {
-                select(&mut keys[..m], kk - 1, &mut scratch32);
-                f32::from_bits(keys[kk - 1]).sqrt()
+                // Neighbouring points have nearly the same d_k: look within ±10 % (of d_k²)
+                // of the previous one first.
+                let near = (guess > 0.0)
+                    .then(|| {
+                        let (lo, hi) = ((guess * 0.9).to_bits(), (guess * 1.1).to_bits());
+                        kth_between(&keys[..m], kk - 1, lo, hi, &mut scratch32[0])
+                    })
+                    .flatten();
+                let d2 = near.unwrap_or_else(|| {
+                    select(&mut keys[..m], kk - 1, &mut scratch32);
+                    keys[kk - 1]
+                });
+                guess = f32::from_bits(d2);
+                guess.sqrt()
             };
             *r = radius_from_dk(dk, k);
             if !nrm.is_empty() {
@@ -193,6 +206,39 @@ where
     };
     run_chunks(&mut radii, &mut normals, work);
     (need_normals.then_some(normals), radii)
+}
+
+/// The `k`-th smallest of `v` (0-based) when it lies in `[lo, hi]`, else `None`: one pass
+/// counts the values below `lo` and gathers those in the bracket, which are then few.
+fn kth_between(v: &[u32], k: usize, lo: u32, hi: u32, buf: &mut [u32; SCRATCH]) -> Option<u32> {
+    let (mut below, mut n) = (0usize, 0usize);
+    for &x in v {
+        // The modulo never wraps (at most SCRATCH values); it spares a bounds check.
+        buf[n % SCRATCH] = x;
+        n += usize::from(x >= lo && x <= hi);
+        below += usize::from(x < lo);
+    }
+    if below > k || below + n <= k {
+        return None;
+    }
+    let band = &mut buf[..n];
+    let r = k - below;
+    if n > 24 {
+        // Many equal distances (a regular grid's rings): not worth sorting.
+        band.select_nth_unstable(r);
+        return Some(band[r]);
+    }
+    // Insertion sort: a bracket holds a handful of values.
+    for a in 1..band.len() {
+        let x = band[a];
+        let mut b = a;
+        while b > 0 && band[b - 1] > x {
+            band[b] = band[b - 1];
+            b -= 1;
+        }
+        band[b] = x;
+    }
+    Some(band[r])
 }
 
 /// Room for the values [`select`] partitions: a whole `GRID_RMAX` window.
