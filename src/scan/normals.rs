@@ -171,9 +171,6 @@ where
             let kk = k.min(m).max(1);
             let dk = if m == 0 {
                 0.0
-            } else if need_normals {
-                select(&mut cand[..m], kk - 1, &mut scratch);
-                f32::from_bits((cand[kk - 1] >> 32) as u32).sqrt()
             } else {
                 // Neighbouring points have nearly the same d_k: look within ±10 % (of d_k²)
                 // of the previous one first.
@@ -192,13 +189,15 @@ where
             };
             *r = radius_from_dk(dk, k);
             if !nrm.is_empty() {
+                // The K_NORMAL nearest, ties broken by index: the smallest packed keys.
                 let kn = K_NORMAL.min(m);
-                let c = &mut cand[..kk.min(m)];
-                if kn > 0 && kn < c.len() {
-                    select(c, kn - 1, &mut scratch);
+                if kn > 0 && kn < m {
+                    select(&mut cand[..m], kn - 1, &mut scratch);
                 }
                 nrm[o] = pca_normal(
-                    c[..kn].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
+                    cand[..kn]
+                        .iter()
+                        .map(|&x| points[(x & 0xffff_ffff) as usize]),
                     toward(points[i]),
                 );
             }
