@@ -222,31 +222,18 @@ fn kth_between(v: &[u32], k: usize, lo: u32, hi: u32, buf: &mut [u32; SCRATCH]) 
     }
     let band = &mut buf[..n];
     let r = k - below;
-    if n > 24 {
-        // Many equal distances (a regular grid's rings): not worth sorting.
-        band.select_nth_unstable(r);
-        return Some(band[r]);
-    }
-    // Insertion sort: a bracket holds a handful of values.
-    for a in 1..band.len() {
-        let x = band[a];
-        let mut b = a;
-        while b > 0 && band[b - 1] > x {
-            band[b] = band[b - 1];
-            b -= 1;
-        }
-        band[b] = x;
-    }
+    // A bracket holds a handful of values (std sorts short slices by insertion).
+    band.select_nth_unstable(r);
     Some(band[r])
 }
 
 /// Room for the values [`select`] partitions: a whole `GRID_RMAX` window.
 const SCRATCH: usize = 256;
 
-const _: () = assert!(((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize <= SCRATCH);
-
 /// Cells of the largest window.
 const WINDOW: usize = ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize;
+
+const _: () = assert!(WINDOW <= SCRATCH);
 
 /// Two partition buffers for [`select`], kept across calls.
 type Scratch<T> = [[T; SCRATCH]; 2];
