@@ -1,5 +1,6 @@
 //! Horizon SSAO alone on one 1440×720 equirect station of the synthetic room (best of five),
-//! for tuning the estimator: `cargo bench --bench ssao` (`-- suite` for a suite station).
+//! for tuning the estimator: `cargo bench --bench ssao` (`-- suite` for a suite station). The
+//! 1×1 row is the per-pixel cost that does not depend on the budget.
 
 use mvao::pipeline::prepare_view;
 use mvao::projection::SensorModel;
@@ -30,7 +31,7 @@ fn main() {
     };
     let v = prepare_view(&s, ProjectionChoice::Auto, &prm).expect("prepare");
     let (g, proj) = (&v.gbuf, &v.sensor.projection);
-    for (d, st) in [(8u32, 8u32), (1, 8), (8, 1)] {
+    for (d, st) in [(8u32, 8u32), (1, 8), (8, 1), (1, 1)] {
         let p = SsaoParams {
             directions: d,
             steps: st,
