@@ -180,6 +180,18 @@ pub fn floor_i64(v: f32) -> i64 {
     }
 }
 
+/// `floor(v)` as an integer without a libm call (baseline x86-64 has no rounding
+/// instruction): same as `v.floor() as i64`, saturating, NaN → 0.
+#[inline]
+pub fn floor_f64(v: f64) -> i64 {
+    let t = v as i64;
+    if (t as f64) > v {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
 /// Wraps an angle into (-π, π].
 #[inline]
 pub fn wrap_angle(a: f32) -> f32 {

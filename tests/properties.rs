@@ -373,6 +373,33 @@ proptest! {
         prop_assert_eq!(p.pixel_index(bad, y), None, "x = {}", bad);
         prop_assert_eq!(p.pixel_index(y, bad), None, "y = {}", bad);
     }
+
+    /// The libm-free floor equals `floor() as i64` for every f64, huge, tiny and special
+    /// values included.
+    #[test]
+    fn floor_f64_is_floor(
+        v in prop_oneof![
+            3 => prop::num::f64::ANY,
+            3 => -1e6f64..1e6,
+            1 => (-1_000_000i64..1_000_000).prop_map(|k| k as f64),
+            1 => (-1_000_000i64..1_000_000).prop_map(|k| k as f64 - 1e-12),
+        ],
+    ) {
+        prop_assert_eq!(mvao::projection::floor_f64(v), v.floor() as i64, "v = {}", v);
+    }
+
+    /// The libm-free colour rounding equals `round().clamp(0, 255) as u8` for every f32.
+    #[test]
+    fn round_u8_is_round(
+        x in prop_oneof![
+            3 => prop::num::f32::ANY,
+            3 => -2.0f32..300.0,
+            1 => (0u32..600).prop_map(|k| k as f32 * 0.5),
+        ],
+    ) {
+        let want = x.round().clamp(0.0, 255.0) as u8;
+        prop_assert_eq!(mvao::io::output::round_u8(x), want, "x = {}", x);
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -116,7 +116,7 @@ fn grid_cells(ply: &PlyFile, n: usize) -> Option<Grid> {
         ) else {
             continue;
         };
-        let ok = |v: &f64| v.is_finite() && *v >= 0.0 && *v < 1e7 && v.fract() == 0.0;
+        let ok = |v: &f64| *v >= 0.0 && *v < 1e7 && f64::from(*v as u32) == *v;
         if r.is_empty() || !r.par_iter().all(ok) || !c.par_iter().all(ok) {
             return None;
         }

@@ -8,6 +8,7 @@
 //! two points are that close, and the test never drops a pair that could meet.
 
 use super::Scan;
+use crate::projection::floor_f64;
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -59,7 +60,7 @@ impl Occupancy {
 #[inline]
 pub fn world_cell(p: glam::Vec3, pose: &glam::DMat4, inv: f64) -> [i64; 3] {
     let w = pose.transform_point3(p.as_dvec3()) * inv;
-    [w.x.floor() as i64, w.y.floor() as i64, w.z.floor() as i64]
+    [floor_f64(w.x), floor_f64(w.y), floor_f64(w.z)]
 }
 
 /// The distinct world cells of `points` placed by `pose` at `level`, sorted.
