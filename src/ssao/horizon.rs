@@ -204,6 +204,41 @@ enum Term {
     March(f32, usize),
 }
 
+/// What a pixel's directions share: `a = n·V`, the normal `na`, the view direction `va`, the
+/// basis `(e1, e2)` of the plane ⊥ V and its screen images `d` (`None`: no march), the
+/// t_max ellipse `x²·irx2 + y²·iry2 = 1`, the march origin `o` and its place `fo` in the pixel.
+struct Frame {
+    a: f32,
+    na: Vec3A,
+    va: Vec3A,
+    e1: Vec3A,
+    e2: Vec3A,
+    d: Option<((f32, f32), (f32, f32))>,
+    irx2: f32,
+    iry2: f32,
+    o: (f32, f32),
+    fo: (f32, f32),
+}
+
+/// The pixel's random numbers and the `(sin, cos)` of the next direction's angle.
+struct Dirs {
+    rng: Rng,
+    sc: (f32, f32),
+}
+
+impl Dirs {
+    /// The next direction's `(sin, cos)` and jitter, advancing by the angle `rot` between
+    /// directions.
+    #[inline(always)]
+    fn next(&mut self, rot: (f32, f32)) -> ((f32, f32), f32) {
+        let jitter = self.rng.next_f32();
+        let (s, co) = self.sc;
+        let (rot_s, rot_c) = rot;
+        self.sc = (s * rot_c + co * rot_s, co * rot_c - s * rot_s);
+        ((s, co), jitter)
+    }
+}
+
 /// Everything a pixel evaluation needs, fixed for the whole map.
 struct Ctx<'a> {
     g: &'a GBuffer,
@@ -274,17 +309,19 @@ impl<'a> Ctx<'a> {
 
     /// Obscurance of valid pixel `c = (x, y)`; `None` when it must be flagged.
     fn pixel(&self, x: usize, y: usize, c: usize) -> Option<f32> {
-        self.pixel_with(x, y, c, Self::march_lanes)
+        self.pixel_with(x, y, c, Self::setup_lanes, Self::march_lanes)
     }
 
-    /// [`Ctx::pixel`] with the half-planes of each group of [`LANES`] directions marched by
-    /// `march` (the SIMD lanes in production, one at a time in the tests' reference).
+    /// [`Ctx::pixel`] with each group of [`LANES`] directions set up by `setup` and its
+    /// half-planes marched by `march` (SIMD lanes in production, one direction at a time in
+    /// the tests' references).
     #[inline(always)]
     fn pixel_with(
         &self,
         x: usize,
         y: usize,
         c: usize,
+        setup: impl Fn(&Self, &Frame, &mut Dirs, &mut Group, &mut [Term; LANES]),
         march: impl Fn(&Self, &mut Group, usize, Vec3A, Vec3A) -> bool,
     ) -> Option<f32> {
         let g = self.g;
@@ -332,74 +369,39 @@ impl<'a> Ctx<'a> {
         let reach_ok = rx > 0.0 && ry > 0.0;
         // Position inside p's own pixel.
         let (fox, foy) = (ox - fast_floor(ox) as f32, oy - fast_floor(oy) as f32);
-        let mut rng = Rng::new(self.seed, c as u64);
-        let (mut sn, mut cs) = (TAU * rng.next_f32()).sin_cos();
-        let (rot_s, rot_c) = self.rot;
+        let mut dirs = Dirs {
+            rng: Rng::new(self.seed, c as u64),
+            sc: (0.0, 0.0),
+        };
+        dirs.sc = (TAU * dirs.rng.next_f32()).sin_cos();
+        let frame = Frame {
+            a,
+            na,
+            va,
+            e1,
+            e2,
+            d: match (d1, d2) {
+                (Some(d1), Some(d2)) if reach_ok => Some((d1, d2)),
+                _ => None,
+            },
+            irx2,
+            iry2,
+            o: (ox, oy),
+            fo: (fox, foy),
+        };
         let (mut sum_s, mut sum_t, mut any) = (0.0f32, 0.0f32, false);
         let mut left = self.directions;
         while left > 0 {
-            let mut grp = Group::default();
+            let mut grp = Group {
+                n: left.min(LANES as u32) as usize,
+                ..Group::default()
+            };
             // What each direction of the group adds to Σ T and Σ S: its open value, and
             // either that again (nothing to march) or its lane's march.
             let mut terms = [Term::None; LANES];
-            for term in terms.iter_mut().take(left.min(LANES as u32) as usize) {
-                let jitter = rng.next_f32();
-                let (s, co) = (sn, cs);
-                (sn, cs) = (s * rot_c + co * rot_s, co * rot_c - s * rot_s);
-                let u = e1 * co + e2 * s;
-                let Some(slice) = Slice::new(a, na.dot(u)) else {
-                    continue;
-                };
-                let open = slice.open();
-                *term = Term::Open(open);
-                let dir = match (d1, d2) {
-                    (Some(d1), Some(d2)) if reach_ok => {
-                        unit(co * d1.0 + s * d2.0, co * d1.1 + s * d2.1)
-                    }
-                    _ => None,
-                };
-                let Some((dx, dy)) = dir else {
-                    continue;
-                };
-                // Length of the march: the t_max ellipse along (dx, dy), clipped to the map,
-                // from where the line leaves p's own pixel.
-                let (idx, idy) = (1.0 / dx, 1.0 / dy);
-                let reach = (1.0 / (dx * dx * irx2 + dy * dy * iry2).sqrt())
-                    .min(exit(oy, idy, self.hf))
-                    .min(self.wf + self.hf);
-                let reach = if self.wrap {
-                    reach
-                } else {
-                    reach.min(exit(ox, idx, self.wf))
-                };
-                let t0 = exit(fox, idx, 1.0).min(exit(foy, idy, 1.0));
-                let span = reach - t0;
-                if !(span > 0.0) {
-                    continue;
-                }
-                let count = (span as u32).clamp(1, self.steps);
-                let step = span / count as f32;
-                // In-plane coordinates as linear forms of v = s − p: along the tangent line
-                // (a u − b V)/R as measured; across it the height n·v above the tangent plane
-                // scaled to the plane (÷ R), so that a point of the tangent plane stays on it:
-                // x = v·(a² u − ab V + b n)/R², y = v·(a n − ab u + b² V)/R².
-                let (sa, sb) = (slice.a, slice.b);
-                let ir2 = slice.inv_r * slice.inv_r;
-                let fx = (u * (sa * sa) - va * (sa * sb) + na * sb) * ir2;
-                let fy = (na * sa - u * (sa * sb) + va * (sb * sb)) * ir2;
-                // March in 48.16 fixed point: floor = arithmetic shift, no float → int per
-                // sample.
-                let t1 = t0 + jitter * step;
-                let l = grp.n;
-                grp.hz[l] = Horizon::new(slice, fx, fy);
-                grp.q[l] = (fixed(ox + dx * t1), fixed(oy + dy * t1));
-                grp.step[l] = (fixed(dx * step), fixed(dy * step));
-                grp.count[l] = count;
-                grp.n += 1;
-                *term = Term::March(open, l);
-            }
-            left -= left.min(LANES as u32);
-            if grp.n > 0 {
+            setup(self, &frame, &mut dirs, &mut grp, &mut terms);
+            left -= grp.n as u32;
+            if grp.count.iter().any(|&k| k > 0) {
                 any |= march(self, &mut grp, c, pa, na);
             }
             for term in terms {
@@ -424,6 +426,193 @@ impl<'a> Ctx<'a> {
             Some(a.clamp(0.0, 1.0))
         } else {
             None
+        }
+    }
+
+    /// Sets up the group's directions, one per lane (`grp.n` of them), with the arithmetic of
+    /// [`Slice::new`], [`unit`] and [`exit`] done on all lanes at once (the divisions and
+    /// square roots of four directions in one instruction each). Every lane gets the same bits
+    /// as [`Ctx::setup_one`] (a test checks it): the same operations in the same order, and
+    /// selects where the scalar code branches.
+    #[inline(always)]
+    fn setup_lanes(&self, f: &Frame, dirs: &mut Dirs, grp: &mut Group, terms: &mut [Term; LANES]) {
+        let n = grp.n;
+        let (mut sn, mut cs, mut jit, mut bs) =
+            ([0.0f32; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+        let mut us = [Vec3A::ZERO; LANES];
+        for l in 0..n {
+            let ((s, co), j) = dirs.next(self.rot);
+            (sn[l], cs[l], jit[l]) = (s, co, j);
+            us[l] = f.e1 * co + f.e2 * s;
+            bs[l] = f.na.dot(us[l]);
+        }
+        let lanes = BVec4A::new(n > 0, n > 1, n > 2, n > 3);
+        let a = f.a;
+        let (av, b) = (Vec4::splat(a), Vec4::from_array(bs));
+        // Slice::new on four lanes (a is the pixel's, so its branch is the same for all).
+        let r = sqrt_lanes(Vec4::splat(a * a) + b * b);
+        let ok = lanes & r.cmpgt(Vec4::splat(1e-6)) & r.is_finite_mask();
+        let inv_r = Vec4::ONE / r;
+        let (ca, sb) = (av * inv_r, b * inv_r);
+        let (lo, lo_s, lo_c, hi, hi_s, hi_c, g_lo, g_hi);
+        if a > 0.0 {
+            (lo, lo_s, lo_c) = (Vec4::ZERO, Vec4::ZERO, Vec4::ONE);
+            hi = atan2_lanes(b, a) + Vec4::splat(FRAC_PI_2);
+            (hi_s, hi_c) = (ca, -sb);
+            g_lo = Vec4::splat(-0.25 * a);
+            g_hi = Vec4::splat(0.25 * a) + Vec4::splat(0.5) * b * hi;
+        } else {
+            let gn = Vec4::select(b.cmpeq(Vec4::ZERO), Vec4::splat(PI), atan2_lanes(b, a));
+            lo = Vec4::select(
+                gn.cmplt(Vec4::splat(FRAC_PI_2)),
+                gn + Vec4::splat(1.5 * PI),
+                gn - Vec4::splat(FRAC_PI_2),
+            );
+            (lo_s, lo_c) = (-ca, sb);
+            (hi, hi_s, hi_c) = (Vec4::splat(PI), Vec4::ZERO, Vec4::splat(-1.0));
+            let g = |s: Vec4, c: Vec4, gamma: Vec4| {
+                Vec4::splat(-0.25 * a) * (c * c - s * s) + Vec4::splat(0.5) * b * (gamma - s * c)
+            };
+            (g_lo, g_hi) = (g(lo_s, lo_c, lo), g(hi_s, hi_c, hi));
+        }
+        let ok = ok & hi.cmpgt(lo);
+        let open = (g_hi - g_lo).max(Vec4::ZERO);
+        // The march: unit screen direction, its length to the t_max ellipse and the map's
+        // edges, from where it leaves the pixel.
+        let march = f.d.map(|(d1, d2)| {
+            let (co, s) = (Vec4::from_array(cs), Vec4::from_array(sn));
+            let x = co * d1.0 + s * d2.0;
+            let y = co * d1.1 + s * d2.1;
+            let len = sqrt_lanes(x * x + y * y);
+            let dir_ok = len.cmpgt(Vec4::ZERO) & len.is_finite_mask();
+            let (dx, dy) = (x / len, y / len);
+            let (idx, idy) = (Vec4::ONE / dx, Vec4::ONE / dy);
+            let ellipse = Vec4::ONE
+                / sqrt_lanes(dx * dx * Vec4::splat(f.irx2) + dy * dy * Vec4::splat(f.iry2));
+            let mut reach = min_lanes(ellipse, exit_lanes(f.o.1, idy, self.hf));
+            reach = min_lanes(reach, Vec4::splat(self.wf + self.hf));
+            if !self.wrap {
+                reach = min_lanes(reach, exit_lanes(f.o.0, idx, self.wf));
+            }
+            let t0 = min_lanes(exit_lanes(f.fo.0, idx, 1.0), exit_lanes(f.fo.1, idy, 1.0));
+            let span = reach - t0;
+            let go = dir_ok & span.cmpgt(Vec4::ZERO);
+            (dx, dy, t0, span, go)
+        });
+        let okb = ok.bitmask();
+        let (b, inv_r, lo, lo_s, lo_c, hi, hi_s, hi_c, g_lo, g_hi, open) = (
+            b.to_array(),
+            inv_r.to_array(),
+            lo.to_array(),
+            lo_s.to_array(),
+            lo_c.to_array(),
+            hi.to_array(),
+            hi_s.to_array(),
+            hi_c.to_array(),
+            g_lo.to_array(),
+            g_hi.to_array(),
+            open.to_array(),
+        );
+        for l in 0..n {
+            if okb & (1 << l) == 0 {
+                continue;
+            }
+            terms[l] = Term::Open(open[l]);
+            let Some((dx, dy, t0, span, go)) = march else {
+                continue;
+            };
+            if go.bitmask() & (1 << l) == 0 {
+                continue;
+            }
+            let slice = Slice {
+                a,
+                b: b[l],
+                inv_r: inv_r[l],
+                lo: lo[l],
+                lo_sc: (lo_s[l], lo_c[l]),
+                hi: hi[l],
+                hi_sc: (hi_s[l], hi_c[l]),
+                g_lo: g_lo[l],
+                g_hi: g_hi[l],
+            };
+            let (dx, dy, t0, span) = (
+                dx.to_array()[l],
+                dy.to_array()[l],
+                t0.to_array()[l],
+                span.to_array()[l],
+            );
+            self.start(f, grp, l, slice, us[l], (dx, dy), t0, span, jit[l]);
+            terms[l] = Term::March(open[l], l);
+        }
+    }
+
+    /// Lane `l`'s march along unit screen direction `dir` from `t0`, over `span` pixels.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn start(
+        &self,
+        f: &Frame,
+        grp: &mut Group,
+        l: usize,
+        slice: Slice,
+        u: Vec3A,
+        (dx, dy): (f32, f32),
+        t0: f32,
+        span: f32,
+        jitter: f32,
+    ) {
+        let count = (span as u32).clamp(1, self.steps);
+        let step = span / count as f32;
+        // In-plane coordinates as linear forms of v = s − p: along the tangent line
+        // (a u − b V)/R as measured; across it the height n·v above the tangent plane
+        // scaled to the plane (÷ R), so that a point of the tangent plane stays on it:
+        // x = v·(a² u − ab V + b n)/R², y = v·(a n − ab u + b² V)/R².
+        let (sa, sb) = (slice.a, slice.b);
+        let ir2 = slice.inv_r * slice.inv_r;
+        let fx = (u * (sa * sa) - f.va * (sa * sb) + f.na * sb) * ir2;
+        let fy = (f.na * sa - u * (sa * sb) + f.va * (sb * sb)) * ir2;
+        // March in 48.16 fixed point: floor = arithmetic shift, no float → int per sample.
+        let t1 = t0 + jitter * step;
+        let (ox, oy) = f.o;
+        grp.hz[l] = Horizon::new(slice, fx, fy);
+        grp.q[l] = (fixed(ox + dx * t1), fixed(oy + dy * t1));
+        grp.step[l] = (fixed(dx * step), fixed(dy * step));
+        grp.count[l] = count;
+    }
+
+    /// The reference for [`Ctx::setup_lanes`]: one direction at a time.
+    #[cfg(test)]
+    fn setup_one(&self, f: &Frame, dirs: &mut Dirs, grp: &mut Group, terms: &mut [Term; LANES]) {
+        for (l, term) in terms.iter_mut().enumerate().take(grp.n) {
+            let ((s, co), jitter) = dirs.next(self.rot);
+            let u = f.e1 * co + f.e2 * s;
+            let Some(slice) = Slice::new(f.a, f.na.dot(u)) else {
+                continue;
+            };
+            let open = slice.open();
+            *term = Term::Open(open);
+            let Some((dx, dy)) =
+                f.d.and_then(|(d1, d2)| unit(co * d1.0 + s * d2.0, co * d1.1 + s * d2.1))
+            else {
+                continue;
+            };
+            let (idx, idy) = (1.0 / dx, 1.0 / dy);
+            let (ox, oy) = f.o;
+            let reach = (1.0 / (dx * dx * f.irx2 + dy * dy * f.iry2).sqrt())
+                .min(exit(oy, idy, self.hf))
+                .min(self.wf + self.hf);
+            let reach = if self.wrap {
+                reach
+            } else {
+                reach.min(exit(ox, idx, self.wf))
+            };
+            let t0 = exit(f.fo.0, idx, 1.0).min(exit(f.fo.1, idy, 1.0));
+            let span = reach - t0;
+            if !(span > 0.0) {
+                continue;
+            }
+            self.start(f, grp, l, slice, u, (dx, dy), t0, span, jitter);
+            *term = Term::March(open, l);
         }
     }
 
@@ -609,6 +798,67 @@ fn smooth(x: f32) -> f32 {
     x * x * (3.0 - 2.0 * x)
 }
 
+/// [`fast_atan2`] of `(y, x)` on four lanes of `y` (same operations, selects for branches).
+#[inline(always)]
+fn atan2_lanes(y: Vec4, x: f32) -> Vec4 {
+    let (ax, ay) = (Vec4::splat(x.abs()), y.abs());
+    let swap = ax.cmplt(ay);
+    let (mn, mx) = (Vec4::select(swap, ax, ay), Vec4::select(swap, ay, ax));
+    let q = mn / mx;
+    let s = q * q;
+    let c = |v: f32| Vec4::splat(v);
+    let mut r = q
+        * (c(0.999_996_1)
+            + s * (c(-0.333_173_7)
+                + s * (c(0.198_078_34)
+                    + s * (c(-0.132_334_12)
+                        + s * (c(0.079_624_95) + s * (c(-0.033_605_33) + s * c(0.006_812_162)))))));
+    r = Vec4::select(ay.cmpgt(ax), c(FRAC_PI_2) - r, r);
+    if x < 0.0 {
+        r = c(PI) - r;
+    }
+    let special = if x < 0.0 || (x == 0.0 && x.is_sign_negative()) {
+        PI
+    } else {
+        0.0
+    };
+    Vec4::select(mx.cmpgt(Vec4::ZERO), r, c(special)).copysign(y)
+}
+
+/// `f32::sqrt` on four lanes (correctly rounded, as the scalar one).
+#[inline(always)]
+fn sqrt_lanes(v: Vec4) -> Vec4 {
+    #[cfg(all(target_arch = "x86_64", target_feature = "sse2"))]
+    {
+        use std::arch::x86_64::_mm_sqrt_ps;
+        // SAFETY: SSE2 is enabled (checked by the cfg).
+        Vec4::from(unsafe { _mm_sqrt_ps(v.into()) })
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "sse2")))]
+    {
+        Vec4::from_array(v.to_array().map(f32::sqrt))
+    }
+}
+
+/// `f32::min` on four lanes: the non-NaN operand when one is NaN.
+#[inline(always)]
+fn min_lanes(a: Vec4, b: Vec4) -> Vec4 {
+    // minps returns its second operand when either is NaN.
+    Vec4::select(b.is_nan_mask(), a, a.min(b))
+}
+
+/// [`exit`] on four lanes of `inv`.
+#[inline(always)]
+fn exit_lanes(o: f32, inv: Vec4, size: f32) -> Vec4 {
+    let pos = (Vec4::splat(size) - Vec4::splat(o)) * inv;
+    let neg = Vec4::splat(-o) * inv;
+    Vec4::select(
+        inv.cmpgt(Vec4::ZERO),
+        pos,
+        Vec4::select(inv.cmplt(Vec4::ZERO), neg, Vec4::INFINITY),
+    )
+}
+
 /// `(x, y)` normalised; `None` when zero or not finite.
 #[inline]
 fn unit(x: f32, y: f32) -> Option<(f32, f32)> {
@@ -631,6 +881,7 @@ fn fast_floor(x: f32) -> i32 {
 
 /// Distance from coordinate `o` to the boundary of `[0, size]` along a direction component
 /// of reciprocal `inv` (`±∞` for a zero component).
+#[cfg(test)]
 #[inline]
 fn exit(o: f32, inv: f32, size: f32) -> f32 {
     if inv > 0.0 {
@@ -662,7 +913,9 @@ struct Slice {
 }
 
 impl Slice {
-    /// `None` when no direction of the half-plane is above the tangent plane.
+    /// `None` when no direction of the half-plane is above the tangent plane. (Production
+    /// code runs the same arithmetic on four lanes: [`Ctx::setup_lanes`].)
+    #[cfg(test)]
     #[inline]
     fn new(a: f32, b: f32) -> Option<Slice> {
         let r = (a * a + b * b).sqrt();
@@ -716,6 +969,7 @@ impl Slice {
     }
 
     /// The open value `T = ∫ f` over the arc.
+    #[cfg(test)]
     #[inline]
     fn open(&self) -> f32 {
         (self.g_hi - self.g_lo).max(0.0)
@@ -1315,13 +1569,26 @@ mod tests {
     }
 
     #[test]
-    fn lanes_march_exactly_like_one_half_plane_at_a_time() {
+    fn lanes_set_up_and_march_exactly_like_one_half_plane_at_a_time() {
         let (pinhole, scanner) = (camera(96, 96, 35f32.to_radians()), equirect(256, 128));
+        // The room again with normals tilted at random, a third of them facing away from the
+        // sensor (n·V ≤ 0 takes the other branch of the slice set-up), some exactly ⊥ V.
+        let mut tilted = room(&scanner);
+        let mut rng = Rng::new(9, 0);
+        for (n, p) in tilted.normal.iter_mut().zip(&tilted.position) {
+            let r = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+            *n = match rng.next_u64() % 6 {
+                0 | 1 => -*n + r * 0.3,
+                2 => (-*p).normalize_or_zero().any_orthogonal_vector(),
+                _ => *n + r * 0.5,
+            };
+        }
         let scenes = [
             (heightfield(48, 40, 1.0, waves), 6.0),
             (step_scene(30.0), 20.0),
             ((floor_and_wall(&pinhole), pinhole), 1.0),
-            ((room(&scanner), scanner), 0.5),
+            ((room(&scanner), scanner.clone()), 0.5),
+            ((tilted, scanner), 0.5),
         ];
         let mut raised = 0;
         for ((g, proj), tmax) in &scenes {
@@ -1339,8 +1606,8 @@ mod tests {
                         continue;
                     }
                     let (x, y) = (c % g.width, c / g.width);
-                    let one = ctx.pixel_with(x, y, c, Ctx::march_one);
-                    let lanes = ctx.pixel_with(x, y, c, Ctx::march_lanes);
+                    let one = ctx.pixel_with(x, y, c, Ctx::setup_one, Ctx::march_one);
+                    let lanes = ctx.pixel_with(x, y, c, Ctx::setup_lanes, Ctx::march_lanes);
                     assert_eq!(one.map(f32::to_bits), lanes.map(f32::to_bits), "pixel {c}");
                     raised += usize::from(one.is_some_and(|a| a < 1.0));
                 }
