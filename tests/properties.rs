@@ -388,6 +388,25 @@ proptest! {
         prop_assert_eq!(mvao::projection::floor_f64(v), v.floor() as i64, "v = {}", v);
     }
 
+    /// The PLY writer's libm-free rounding gives the same integer as `f64::round` for every
+    /// f64 and every integer property type.
+    #[test]
+    fn ply_round_is_round(
+        v in prop_oneof![
+            3 => prop::num::f64::ANY,
+            3 => -70_000.0f64..70_000.0,
+            1 => (-140_000i64..140_000).prop_map(|k| k as f64 * 0.5),
+            1 => (0u64..64).prop_map(|k| (1u64 << 52) as f64 - 2.0 + k as f64 * 0.25),
+        ],
+    ) {
+        let (got, want) = (mvao::io::ply::round(v), v.round());
+        prop_assert_eq!(got as i64, want as i64, "v = {}", v);
+        prop_assert_eq!(got as u8, want as u8, "v = {}", v);
+        prop_assert_eq!(got as i16, want as i16, "v = {}", v);
+        prop_assert_eq!(got as u32, want as u32, "v = {}", v);
+        prop_assert!(got == want || (got.is_nan() && want.is_nan()), "v = {}: {} vs {}", v, got, want);
+    }
+
     /// The libm-free colour rounding equals `round().clamp(0, 255) as u8` for every f32.
     #[test]
     fn round_u8_is_round(

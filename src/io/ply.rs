@@ -785,12 +785,12 @@ impl ScalarType {
             len: self.size(),
         };
         match self {
-            ScalarType::I8 => e.buf[..1].copy_from_slice(&(v.round() as i8).to_le_bytes()),
-            ScalarType::U8 => e.buf[..1].copy_from_slice(&(v.round() as u8).to_le_bytes()),
-            ScalarType::I16 => e.buf[..2].copy_from_slice(&(v.round() as i16).to_le_bytes()),
-            ScalarType::U16 => e.buf[..2].copy_from_slice(&(v.round() as u16).to_le_bytes()),
-            ScalarType::I32 => e.buf[..4].copy_from_slice(&(v.round() as i32).to_le_bytes()),
-            ScalarType::U32 => e.buf[..4].copy_from_slice(&(v.round() as u32).to_le_bytes()),
+            ScalarType::I8 => e.buf[..1].copy_from_slice(&(round(v) as i8).to_le_bytes()),
+            ScalarType::U8 => e.buf[..1].copy_from_slice(&(round(v) as u8).to_le_bytes()),
+            ScalarType::I16 => e.buf[..2].copy_from_slice(&(round(v) as i16).to_le_bytes()),
+            ScalarType::U16 => e.buf[..2].copy_from_slice(&(round(v) as u16).to_le_bytes()),
+            ScalarType::I32 => e.buf[..4].copy_from_slice(&(round(v) as i32).to_le_bytes()),
+            ScalarType::U32 => e.buf[..4].copy_from_slice(&(round(v) as u32).to_le_bytes()),
             ScalarType::F32 => e.buf[..4].copy_from_slice(&(v as f32).to_le_bytes()),
             ScalarType::F64 => e.buf.copy_from_slice(&v.to_le_bytes()),
         }
@@ -1563,6 +1563,28 @@ fn ascii_error(
         show(tok),
         def.name
     ))
+}
+
+/// `v.round()` (halves away from zero) for the integer conversions of [`ScalarType::encode`],
+/// without the libm call baseline x86-64 makes for it: the output writer rounds every colour
+/// of every point. Same value as `f64::round` up to the sign of a zero, which the integer
+/// conversion that follows drops.
+#[inline]
+pub fn round(v: f64) -> f64 {
+    // Beyond 2^52 every f64 is an integer (and ±∞, NaN pass through).
+    if !(v.abs() < 4_503_599_627_370_496.0) {
+        return v;
+    }
+    let t = v as i64 as f64;
+    // Exact: v and trunc(v) are within 1 of each other.
+    let d = v - t;
+    if d >= 0.5 {
+        t + 1.0
+    } else if d <= -0.5 {
+        t - 1.0
+    } else {
+        t
+    }
 }
 
 #[cfg(test)]
