@@ -60,9 +60,10 @@ pub struct Maps {
 const SOFTWARE: &str = concat!("mvao ", env!("CARGO_PKG_VERSION"));
 
 /// The `comments` attribute.
-const COMMENTS: &str =
-    "mvao per-view maps: local position P, normal N, radius, depth (inf = empty), \
-                        ssao, border (px), index (u32, 4294967295 = empty), no_sample";
+const COMMENTS: &str = concat!(
+    "mvao per-view maps: local position P, normal N, radius, depth (inf = empty), ",
+    "ssao, border (px), index (u32, 4294967295 = empty), no_sample"
+);
 
 /// Encodes a view's maps as EXR bytes. All slices must hold `gbuf.width × gbuf.height`
 /// values (checked by the caller).
