@@ -1,5 +1,5 @@
 //! Radii (and PCA normals) from the native grid of one 1440×720 equirect suite station, best
-//! of five: `cargo bench --bench normals`.
+//! of five: `cargo bench --bench normals` (`-- radii` or `-- normals` for one path only).
 
 use mvao::projection::SensorModel;
 use mvao::scan::normals;
@@ -19,6 +19,10 @@ fn main() {
         5
     };
     for need in [false, true] {
+        let only = |a: &str| std::env::args().any(|x| x == a);
+        if (only("radii") && need) || (only("normals") && !need) {
+            continue;
+        }
         let mut best = f64::INFINITY;
         let mut sum = 0.0f64;
         for _ in 0..runs {

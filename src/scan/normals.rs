@@ -2,7 +2,7 @@
 //! radii `rad(p) = 2·sqrt(d_k²/k)` with `d_k` the distance to the k-th nearest neighbour
 //! (k = 32), from one k-d tree query per point.
 
-use glam::{DVec3, Vec3, Vec3A};
+use glam::{DVec3, Vec3, Vec3A, Vec4};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
@@ -114,15 +114,27 @@ where
     if n == 0 || cells == 0 || grid.row.len() != n {
         return estimate(points, need_normals, toward);
     }
-    // Positions in grid order (NaN where empty) beside the point each cell holds: a window
-    // row is then one contiguous run of 16-byte loads instead of two dependent gathers.
+    // Positions in grid order (NaN where empty) beside the point each cell holds, so that a
+    // window row is one contiguous run instead of two dependent gathers per cell: for radii
+    // alone one array per coordinate (four cells per instruction), with normals one of
+    // 16-byte positions (the candidates are packed one at a time anyway).
     let mut at = vec![u32::MAX; cells];
-    let mut gp = vec![Vec3A::NAN; cells];
+    let soa = if need_normals { 0 } else { cells };
+    let (mut gx, mut gy, mut gz) = (
+        vec![f32::NAN; soa],
+        vec![f32::NAN; soa],
+        vec![f32::NAN; soa],
+    );
+    let mut gp = vec![Vec3A::NAN; cells - soa];
     for (i, p) in points.iter().enumerate() {
         let c = grid.row[i] as usize * cols as usize + grid.col[i] as usize;
         if c < cells {
             at[c] = i as u32;
-            gp[c] = Vec3A::from(*p);
+            if need_normals {
+                gp[c] = Vec3A::from(*p);
+            } else {
+                (gx[c], gy[c], gz[c]) = (p.x, p.y, p.z);
+            }
         }
     }
     let k = K_RADIUS.min(n);
@@ -140,36 +152,43 @@ where
             let i = ci * CHUNK + o;
             let p = Vec3A::from(points[i]);
             let (r0, c0) = (grid.row[i] as i64, grid.col[i] as i64);
-            let mut m;
+            // `m` keys, `found` of them real points: with normals the keys are the points'
+            // alone; for radii alone every cell of the window is a key, the empty ones NaN,
+            // whose bits order after every distance, so the k-th smallest is the same.
+            let (mut m, mut found);
             let mut half = GRID_R0;
             loop {
-                m = 0;
+                (m, found) = (0, 0);
                 let (ca, cb) = (
                     (c0 - half).max(0) as usize,
                     (c0 + half).min(cols - 1) as usize,
                 );
                 for rr in (r0 - half).max(0)..=(r0 + half).min(rows - 1) {
-                    let row = (rr * cols) as usize;
-                    let (qs, js) = (&gp[row + ca..=row + cb], &at[row + ca..=row + cb]);
-                    for (q, &j) in qs.iter().zip(js) {
-                        // In the order of `Vec3::distance_squared` (the k-d tree path's).
-                        let d = *q - p;
-                        let d2 = d.x * d.x + d.y * d.y + d.z * d.z;
-                        // Empty cells are NaN: written, then overwritten by the next one.
-                        keys[m] = d2.to_bits();
-                        if need_normals {
+                    let run = (rr * cols) as usize + ca..=(rr * cols) as usize + cb;
+                    if need_normals {
+                        for (q, &j) in gp[run.clone()].iter().zip(&at[run]) {
+                            // In the order of `Vec3::distance_squared` (the k-d tree path's).
+                            let d = *q - p;
+                            let d2 = d.x * d.x + d.y * d.y + d.z * d.z;
+                            // Empty cells are NaN: written, then overwritten by the next one.
                             cand[m] = (u64::from(d2.to_bits()) << 32) | u64::from(j);
+                            keys[m] = d2.to_bits();
+                            m += usize::from(j != u32::MAX);
                         }
-                        m += usize::from(j != u32::MAX);
+                        found = m;
+                    } else {
+                        let (xs, ys, zs) = (&gx[run.clone()], &gy[run.clone()], &gz[run]);
+                        found += distances(xs, ys, zs, p, &mut keys[m..m + xs.len()]);
+                        m += xs.len();
                     }
                 }
-                if m >= k || half >= GRID_RMAX {
+                if found >= k || half >= GRID_RMAX {
                     break;
                 }
                 half += 2;
             }
-            let kk = k.min(m).max(1);
-            let dk = if m == 0 {
+            let kk = k.min(found).max(1);
+            let dk = if found == 0 {
                 0.0
             } else {
                 // Neighbouring points have nearly the same d_k: look within ±10 % (of d_k²)
@@ -205,6 +224,33 @@ where
     };
     run_chunks(&mut radii, &mut normals, work);
     (need_normals.then_some(normals), radii)
+}
+
+/// The squared distances from `p` of the cells at `(xs, ys, zs)` as float bits into `out`,
+/// four cells per SIMD instruction, with the arithmetic of `Vec3::distance_squared` (the
+/// same bits as one cell at a time). Returns how many are not NaN (the cells holding a point:
+/// points are finite, empty cells NaN).
+#[inline(always)]
+fn distances(xs: &[f32], ys: &[f32], zs: &[f32], p: Vec3A, out: &mut [u32]) -> usize {
+    let n = xs.len().min(ys.len()).min(zs.len()).min(out.len());
+    let (px, py, pz) = (Vec4::splat(p.x), Vec4::splat(p.y), Vec4::splat(p.z));
+    let (mut i, mut found) = (0, 0);
+    while i + 4 <= n {
+        let dx = Vec4::from_slice(&xs[i..i + 4]) - px;
+        let dy = Vec4::from_slice(&ys[i..i + 4]) - py;
+        let dz = Vec4::from_slice(&zs[i..i + 4]) - pz;
+        let d2 = dx * dx + dy * dy + dz * dz;
+        out[i..i + 4].copy_from_slice(&d2.to_array().map(f32::to_bits));
+        found += d2.cmpeq(d2).bitmask().count_ones() as usize;
+        i += 4;
+    }
+    for j in i..n {
+        let (dx, dy, dz) = (xs[j] - p.x, ys[j] - p.y, zs[j] - p.z);
+        let d2 = dx * dx + dy * dy + dz * dz;
+        out[j] = d2.to_bits();
+        found += usize::from(!d2.is_nan());
+    }
+    found
 }
 
 /// The `k`-th smallest of `v` (0-based) when it lies in `[lo, hi]`, else `None`: one pass
