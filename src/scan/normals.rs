@@ -120,23 +120,27 @@ where
     // 16-byte positions (the candidates are packed one at a time anyway).
     let mut at = vec![u32::MAX; cells];
     let soa = if need_normals { 0 } else { cells };
-    let (mut gx, mut gy, mut gz) = (
-        vec![f32::NAN; soa],
-        vec![f32::NAN; soa],
-        vec![f32::NAN; soa],
-    );
+    // One allocation for the three coordinate arrays (the allocator keeps freed memory
+    // when every view fits: fewer, larger blocks fragment its heap less).
+    let mut xyz = vec![f32::NAN; 3 * soa];
     let mut gp = vec![Vec3A::NAN; cells - soa];
-    for (i, p) in points.iter().enumerate() {
-        let c = grid.row[i] as usize * cols as usize + grid.col[i] as usize;
-        if c < cells {
-            at[c] = i as u32;
-            if need_normals {
-                gp[c] = Vec3A::from(*p);
-            } else {
-                (gx[c], gy[c], gz[c]) = (p.x, p.y, p.z);
+    {
+        let (gx, rest) = xyz.split_at_mut(soa);
+        let (gy, gz) = rest.split_at_mut(soa);
+        for (i, p) in points.iter().enumerate() {
+            let c = grid.row[i] as usize * cols as usize + grid.col[i] as usize;
+            if c < cells {
+                at[c] = i as u32;
+                if need_normals {
+                    gp[c] = Vec3A::from(*p);
+                } else {
+                    (gx[c], gy[c], gz[c]) = (p.x, p.y, p.z);
+                }
             }
         }
     }
+    let (gx, rest) = xyz.split_at(soa);
+    let (gy, gz) = rest.split_at(soa);
     let k = K_RADIUS.min(n);
     let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
