@@ -679,6 +679,18 @@ pub fn angular_radius(r: f32, depth: f32) -> f32 {
     (r / depth).asin().min(89f32.to_radians())
 }
 
+/// Coefficients of [`fast_atan2`]'s polynomial in `s = q²`, lowest first: `atan q ≈ q·P(s)`
+/// on `[0, 1]`. Shared with the SIMD version in the horizon SSAO, which must give the same bits.
+pub(crate) const ATAN_COEFFS: [f32; 7] = [
+    0.999_996_1,
+    -0.333_173_7,
+    0.198_078_34,
+    -0.132_334_12,
+    0.079_624_95,
+    -0.033_605_33,
+    0.006_812_162,
+];
+
 /// `atan2(y, x)` in `(−π, π]` to within 3·10⁻⁷ rad (odd minimax-fitted polynomial of degree
 /// 13 on `[0, 1]` after octant reduction).
 #[inline]
@@ -694,12 +706,9 @@ pub fn fast_atan2(y: f32, x: f32) -> f32 {
     }
     let q = mn / mx;
     let s = q * q;
-    let mut r = q
-        * (0.999_996_1
-            + s * (-0.333_173_7
-                + s * (0.198_078_34
-                    + s * (-0.132_334_12
-                        + s * (0.079_624_95 + s * (-0.033_605_33 + s * 0.006_812_162))))));
+    // Horner's rule, innermost (highest) coefficient first.
+    let (&top, rest) = ATAN_COEFFS.split_last().unwrap_or((&0.0, &[]));
+    let mut r = q * rest.iter().rev().fold(top, |acc, &c| c + s * acc);
     if ay > ax {
         r = std::f32::consts::FRAC_PI_2 - r;
     }

@@ -32,17 +32,10 @@ pub fn grey(ao: f32, gamma: f32) -> u8 {
 }
 
 /// `x.round().clamp(0, 255) as u8` (halves away from zero, NaN → 0) without the libm call
-/// `round` is on baseline x86-64: once per output point.
+/// `round` is on baseline x86-64 (see [`crate::io::ply::round`]): once per output point.
 #[inline]
 pub fn round_u8(x: f32) -> u8 {
-    let x = x.clamp(0.0, 255.0);
-    // Exact: x − trunc(x) has no rounding error for 0 ≤ x ≤ 255.
-    let t = x as u8;
-    if x - f32::from(t) >= 0.5 {
-        t + 1
-    } else {
-        t
-    }
+    crate::io::ply::round(f64::from(x)).clamp(0.0, 255.0) as u8
 }
 
 /// Writes `ply` with per-vertex `ao` (one value per vertex, all finite) and colours to `path`.

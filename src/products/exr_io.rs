@@ -66,7 +66,7 @@ const COMMENTS: &str = concat!(
 );
 
 /// Encodes a view's maps as EXR bytes. All slices must hold `gbuf.width × gbuf.height`
-/// values (checked by the caller).
+/// values (an error otherwise).
 pub fn encode_maps(
     gbuf: &GBuffer,
     ao: &[f32],

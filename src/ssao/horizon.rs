@@ -92,7 +92,7 @@ use super::rng::Rng;
 use super::{AoMap, SsaoParams};
 use crate::gbuffer::{GBuffer, EMPTY};
 use crate::pagebuf::PageBuf;
-use crate::projection::{fast_atan2, Projection};
+use crate::projection::{fast_atan2, Projection, ATAN_COEFFS};
 use glam::{BVec4A, Vec3A, Vec4};
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
@@ -496,7 +496,8 @@ impl<'a> Ctx<'a> {
             }
             let t0 = min_lanes(exit_lanes(f.fo.0, idx, 1.0), exit_lanes(f.fo.1, idy, 1.0));
             let span = reach - t0;
-            let go = dir_ok & span.cmpgt(Vec4::ZERO);
+            let go = (dir_ok & span.cmpgt(Vec4::ZERO)).bitmask();
+            let [dx, dy, t0, span] = [dx, dy, t0, span].map(|v| v.to_array());
             (dx, dy, t0, span, go)
         });
         let okb = ok.bitmask();
@@ -518,10 +519,10 @@ impl<'a> Ctx<'a> {
                 continue;
             }
             terms[l] = Term::Open(open[l]);
-            let Some((dx, dy, t0, span, go)) = march else {
+            let Some((dx, dy, t0, span, go)) = &march else {
                 continue;
             };
-            if go.bitmask() & (1 << l) == 0 {
+            if go & (1 << l) == 0 {
                 continue;
             }
             let slice = Slice {
@@ -535,13 +536,17 @@ impl<'a> Ctx<'a> {
                 g_lo: g_lo[l],
                 g_hi: g_hi[l],
             };
-            let (dx, dy, t0, span) = (
-                dx.to_array()[l],
-                dy.to_array()[l],
-                t0.to_array()[l],
-                span.to_array()[l],
+            self.start(
+                f,
+                grp,
+                l,
+                slice,
+                us[l],
+                (dx[l], dy[l]),
+                t0[l],
+                span[l],
+                jit[l],
             );
-            self.start(f, grp, l, slice, us[l], (dx, dy), t0, span, jit[l]);
             terms[l] = Term::March(open[l], l);
         }
     }
@@ -807,12 +812,9 @@ fn atan2_lanes(y: Vec4, x: f32) -> Vec4 {
     let q = mn / mx;
     let s = q * q;
     let c = |v: f32| Vec4::splat(v);
-    let mut r = q
-        * (c(0.999_996_1)
-            + s * (c(-0.333_173_7)
-                + s * (c(0.198_078_34)
-                    + s * (c(-0.132_334_12)
-                        + s * (c(0.079_624_95) + s * (c(-0.033_605_33) + s * c(0.006_812_162)))))));
+    // The same Horner's rule as the scalar one.
+    let (&top, rest) = ATAN_COEFFS.split_last().unwrap_or((&0.0, &[]));
+    let mut r = q * rest.iter().rev().fold(c(top), |acc, &k| c(k) + s * acc);
     r = Vec4::select(ay.cmpgt(ax), c(FRAC_PI_2) - r, r);
     if x < 0.0 {
         r = c(PI) - r;
