@@ -1,16 +1,17 @@
 //! Atomic file output: write to a hidden temporary file beside the target, flush, then rename,
 //! so an interrupted run never leaves a file that looks complete.
 
+use super::direct::Writer;
 use crate::error::{Error, Result};
 use std::fs::File;
-use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 /// Writes `path` atomically: `fill` writes the content into a buffered temporary file in the
-/// same directory, which is synced and renamed over `path` only when `fill` succeeds.
+/// same directory (large files past the page cache, see [`super::direct`]), which is synced
+/// and renamed over `path` only when `fill` succeeds.
 pub fn write_atomic<F>(path: &Path, fill: F) -> Result<()>
 where
-    F: FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+    F: FnOnce(&mut Writer) -> std::io::Result<()>,
 {
     write_atomic_with(path, true, fill)
 }
@@ -21,15 +22,13 @@ where
 /// whereas a kill of the process alone never loses what was written.
 pub fn write_atomic_with<F>(path: &Path, sync: bool, fill: F) -> Result<()>
 where
-    F: FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+    F: FnOnce(&mut Writer) -> std::io::Result<()>,
 {
     let tmp = temp_path(path);
     let res = (|| {
-        let file = File::create(&tmp)?;
-        let mut w = BufWriter::with_capacity(1 << 20, file);
+        let mut w = Writer::new(File::create(&tmp)?);
         fill(&mut w)?;
-        w.flush()?;
-        let file = w.into_inner().map_err(|e| e.into_error())?;
+        let file = w.finish()?;
         if sync {
             file.sync_all()?;
         }
@@ -97,6 +96,7 @@ pub fn temp_path(path: &Path) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::io::Write;
 
     #[test]
     fn failed_write_leaves_nothing() {

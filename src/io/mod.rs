@@ -4,6 +4,7 @@
 pub mod align;
 pub mod atomic;
 pub mod dataset;
+pub mod direct;
 pub mod e57_file;
 pub mod las_file;
 pub mod output;

@@ -247,7 +247,7 @@ fn write_product(dir: &Path, key: &str, suffix: &str, bytes: &[u8]) -> Result<Pr
 /// Reads a product and checks its size and hash against the entry.
 fn read_product(dir: &Path, f: &ProductFile) -> Result<(PathBuf, Vec<u8>)> {
     let path = dir.join(&f.name);
-    let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+    let bytes = crate::io::direct::read(&path).map_err(|e| Error::io(&path, e))?;
     if bytes.len() as u64 != f.size {
         return Err(Error::format(
             &path,
