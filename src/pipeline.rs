@@ -337,7 +337,7 @@ pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, 
     let invalid_normals = scan
         .normals
         .as_ref()
-        .map(|n| n.iter().filter(|v| *v == &Vec3::ZERO).count());
+        .map(|n| n.par_iter().filter(|v| *v == &Vec3::ZERO).count());
     let need = invalid_normals.is_none_or(|k| k > 0);
     let toward = |p| proj.toward_sensor(p);
     let (est, radii) = match &scan.grid {
@@ -349,7 +349,7 @@ pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, 
     let (normals, note) = match (&scan.normals, est) {
         (Some(given), Some(est)) => {
             let n: Vec<Vec3> = given
-                .iter()
+                .par_iter()
                 .zip(&est)
                 .zip(&scan.points)
                 .map(|((g, e), p)| {
@@ -367,7 +367,7 @@ pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, 
         }
         (Some(given), None) => (
             given
-                .iter()
+                .par_iter()
                 .zip(&scan.points)
                 .map(|(g, p)| face(*g, proj.toward_sensor(*p)))
                 .collect(),

@@ -6,6 +6,7 @@ use crate::error::{Error, Result};
 use crate::projection::{Model, Projection, SensorModel, Warp};
 use crate::scan::Scan;
 use glam::{DMat3, DMat4, DVec3, DVec4, Mat2, Vec2, Vec3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};
 
@@ -75,9 +76,7 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
     });
     if let Some(grid) = scan.grid.as_ref().filter(|_| !sparse) {
         let mut fits = fit_grid(scan, choice);
-        for f in &mut fits {
-            add_warps(f, scan, grid);
-        }
+        fits.par_iter_mut().for_each(|f| add_warps(f, scan, grid));
         let best = fits
             .into_iter()
             .min_by(|a, b| a.score().total_cmp(&b.score()));
@@ -357,9 +356,11 @@ fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
     let mut fits = Vec::new();
     let want = |m: ProjectionChoice| choice == ProjectionChoice::Auto || choice == m;
     if want(ProjectionChoice::Equirect) {
-        for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
-            fits.extend(fit_equirect(&pts, &rc, axis, (grid.rows, grid.cols)));
-        }
+        let per_axis: Vec<Vec<Fit>> = [DVec3::X, DVec3::Y, DVec3::Z]
+            .par_iter()
+            .map(|&axis| fit_equirect(&pts, &rc, axis, (grid.rows, grid.cols)))
+            .collect();
+        fits.extend(per_axis.into_iter().flatten());
     }
     if want(ProjectionChoice::Perspective) {
         let mean = pts.iter().map(|p| p.normalize_or_zero()).sum::<DVec3>();
@@ -374,9 +375,11 @@ fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
         if mean.length() > 1e-9 {
             axes.push(mean.normalize());
         }
-        for axis in axes {
-            fits.extend(fit_perspective(&pts, &rc, axis));
-        }
+        let per_axis: Vec<Option<Fit>> = axes
+            .par_iter()
+            .map(|&axis| fit_perspective(&pts, &rc, axis))
+            .collect();
+        fits.extend(per_axis.into_iter().flatten());
     }
     if want(ProjectionChoice::Ortho) {
         fits.extend(fit_ortho(&pts, &rc));

@@ -100,7 +100,7 @@ pub fn laplacian(depth: &[f32], width: usize, height: usize, wrap_x: bool) -> Ve
 pub fn edge_mask(lap: &[f32], depth: &[f32], quantile: f32) -> Vec<bool> {
     let lap = fit(lap, depth.len(), 0.0);
     let mut vals: Vec<f32> = lap
-        .iter()
+        .par_iter()
         .zip(depth)
         .filter(|(_, d)| d.is_finite())
         .map(|(l, _)| *l)
@@ -116,7 +116,7 @@ pub fn edge_mask(lap: &[f32], depth: &[f32], quantile: f32) -> Vec<bool> {
     let rank = ((q * vals.len() as f64).ceil() as usize).clamp(1, vals.len());
     let (_, tau, _) = vals.select_nth_unstable_by(rank - 1, f32::total_cmp);
     let tau = *tau;
-    lap.iter()
+    lap.par_iter()
         .zip(depth)
         .map(|(&l, d)| d.is_finite() && l >= tau && l > EDGE_MIN_LAPLACIAN)
         .collect()
