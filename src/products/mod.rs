@@ -374,11 +374,8 @@ impl MergeMaps {
     /// G-buffer's position, normal, radius and depth and the border map are then freed (the
     /// packed maps hold what the merge reads of them).
     pub fn place(&mut self, pose: DMat4, prm: &MergeParams) {
-        // Side by side: each fills the other's idle moments.
-        let (cells, maps) = rayon::join(
-            || ViewCells::new(&self.gbuf, pose),
-            || ViewMaps::new(&self.projection, &self.gbuf, &self.ao, &self.border, prm),
-        );
+        let cells = ViewCells::new(&self.gbuf, pose);
+        let maps = ViewMaps::new(&self.projection, &self.gbuf, &self.ao, &self.border, prm);
         let g = &mut self.gbuf;
         (g.position, g.normal, g.radius, g.depth) = Default::default();
         self.border = Vec::new();
