@@ -617,6 +617,56 @@ impl PlyFile {
         })
     }
 
+    /// `f` of the values of scalar properties `props` of `element`, one result per row, in
+    /// one pass (in parallel for fixed-size rows). `None` under the same conditions as
+    /// [`PlyFile::scalar_column`] for any of the properties; values read as there.
+    pub fn map_scalars<const K: usize, T: Send>(
+        &self,
+        element: &str,
+        props: [&str; K],
+        f: impl Fn([f64; K]) -> T + Sync,
+    ) -> Option<Vec<T>> {
+        let (def, data) = self.element_parts(element)?;
+        let mut cols = [(0usize, ScalarType::U8); K];
+        for (c, name) in cols.iter_mut().zip(props) {
+            let i = def.props.iter().position(|p| p.name == name)?;
+            let PropertyKind::Scalar(t) = def.props.get(i)?.kind else {
+                return None;
+            };
+            *c = (i, t);
+        }
+        let layout = Layout::of(def, data)?;
+        let mut out = Vec::with_capacity(def.count);
+        match layout {
+            Layout::Fixed { stride, bytes } => {
+                let mut at = [(0usize, ScalarType::U8); K];
+                for (a, &(i, t)) in at.iter_mut().zip(&cols) {
+                    let off = field_offset(&def.props, &[], i)?;
+                    if off + t.size() > stride {
+                        return None;
+                    }
+                    *a = (off, t);
+                }
+                // In range for every row (checked above), so each read succeeds.
+                bytes
+                    .par_chunks_exact(stride.max(1))
+                    .map(|row| f(at.map(|(o, t)| t.read_f64(row, o).unwrap_or(f64::NAN))))
+                    .collect_into_vec(&mut out);
+            }
+            Layout::Rows { .. } => {
+                layout.for_each_row(|row| {
+                    let mut v = [0.0f64; K];
+                    for (v, &(i, t)) in v.iter_mut().zip(&cols) {
+                        *v = t.read_f64(row, field_offset(&def.props, row, i)?)?;
+                    }
+                    out.push(f(v));
+                    Some(())
+                })?;
+            }
+        }
+        Some(out)
+    }
+
     /// Positions `[x, y, z]` of the `vertex` element (properties `x`, `y`, `z` of any scalar
     /// type, converted to f64), decoded in one pass over the rows: a fixed-stride walk when the
     /// element has no list property, the row offsets otherwise. `None` if there is no `vertex`
@@ -1838,6 +1888,38 @@ mod tests {
 
     /// A Stanford-style range scan: `obj_info` grid size and a `range_grid` element whose
     /// entries are empty or hold one vertex index.
+    /// One pass over several columns reads what the columns read one by one do, with fixed
+    /// rows and with rows holding a list, and refuses what they refuse.
+    #[test]
+    fn map_scalars_equals_scalar_columns() {
+        let fixed = read_ok(
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty uchar k\n\
+              property double y\nend_header\n1.5 7 -2\n0.25 255 1e300\n-0 0 3.5\n",
+        );
+        let listed = read_ok(
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n\
+              property list uchar int idx\nproperty double y\nend_header\n\
+              1.5 2 4 5 -2\n0.25 0 1e300\n-0 1 9 3.5\n",
+        );
+        for p in [&fixed, &listed] {
+            let both = p.map_scalars("vertex", ["y", "x"], |v| v).unwrap();
+            let (x, y) = (
+                p.scalar_column("vertex", "x").unwrap(),
+                p.scalar_column("vertex", "y").unwrap(),
+            );
+            assert_eq!(both.len(), 3);
+            for (i, v) in both.iter().enumerate() {
+                assert_eq!(v[0].to_bits(), y[i].to_bits());
+                assert_eq!(v[1].to_bits(), x[i].to_bits());
+            }
+            assert!(p.map_scalars("vertex", ["x", "nope"], |v| v).is_none());
+            assert!(p.map_scalars("face", ["x"], |v| v).is_none());
+        }
+        assert!(listed.map_scalars("vertex", ["x", "idx"], |v| v).is_none());
+        let k = fixed.map_scalars("vertex", ["k"], |[k]| k as u8).unwrap();
+        assert_eq!(k, [7, 255, 0]);
+    }
+
     const RANGE_SCAN: &str = "ply\nformat ascii 1.0\nobj_info is_cyberware_data 1\n\
         obj_info num_cols 3\nobj_info num_rows 2\nelement vertex 3\nproperty float x\n\
         property float y\nproperty float z\nelement range_grid 6\n\

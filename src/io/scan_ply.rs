@@ -51,22 +51,9 @@ pub fn raw_from_ply(ply: &PlyFile, path: &Path, name: &str) -> Result<RawScan> {
         .vertex_xyz()
         .ok_or_else(|| Error::format(path, "cannot read x/y/z of the vertex element"))?;
     let n = xyz.len();
-    let normals = if ["nx", "ny", "nz"]
-        .iter()
-        .all(|c| ply.has_property("vertex", c))
-    {
-        let cols: Vec<Vec<f64>> = ["nx", "ny", "nz"]
-            .iter()
-            .filter_map(|c| ply.scalar_column("vertex", c))
-            .collect();
-        (cols.len() == 3).then(|| {
-            (0..n)
-                .map(|i| Vec3::new(cols[0][i] as f32, cols[1][i] as f32, cols[2][i] as f32))
-                .collect()
-        })
-    } else {
-        None
-    };
+    let normals = ply.map_scalars("vertex", ["nx", "ny", "nz"], |[x, y, z]| {
+        Vec3::new(x as f32, y as f32, z as f32)
+    });
     // Vertices missing from the grid are marked with u32::MAX, which lies outside any grid.
     let grid = grid_cells(ply, n).map(|g| RawGrid {
         rows: g.rows,
@@ -110,18 +97,21 @@ fn grid_cells(ply: &PlyFile, n: usize) -> Option<Grid> {
         return Some(g);
     }
     for (rn, cn) in ROW_COL_NAMES {
-        let (Some(r), Some(c)) = (
-            ply.scalar_column("vertex", rn),
-            ply.scalar_column("vertex", cn),
-        ) else {
+        let ok = |v: f64| (0.0..1e7).contains(&v) && f64::from(v as u32) == v;
+        // A whole number below 10⁷ is never u32::MAX, which marks a value that is not.
+        let Some(rc) = ply.map_scalars("vertex", [rn, cn], |[r, c]| {
+            if ok(r) && ok(c) {
+                (r as u32, c as u32)
+            } else {
+                (u32::MAX, u32::MAX)
+            }
+        }) else {
             continue;
         };
-        let ok = |v: &f64| *v >= 0.0 && *v < 1e7 && f64::from(*v as u32) == *v;
-        if r.is_empty() || !r.par_iter().all(ok) || !c.par_iter().all(ok) {
+        if rc.is_empty() || rc.par_iter().any(|&(r, _)| r == u32::MAX) {
             return None;
         }
-        let row: Vec<u32> = r.par_iter().map(|&v| v as u32).collect();
-        let col: Vec<u32> = c.par_iter().map(|&v| v as u32).collect();
+        let (row, col): (Vec<u32>, Vec<u32>) = rc.into_par_iter().unzip();
         let rows = row.par_iter().max().map_or(0, |m| m + 1);
         let cols = col.par_iter().max().map_or(0, |m| m + 1);
         return Some(Grid {

@@ -327,7 +327,7 @@ pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
     let (points, source_index, normals, cells, skipped) = if all.par_iter().all(|v| v.is_finite()) {
         // The usual case: every vertex is a point.
         let points = all;
-        let source_index: Vec<u32> = (0..n as u32).collect();
+        let source_index: Vec<u32> = (0..n as u32).into_par_iter().collect();
         let normals = raw
             .normals
             .as_ref()
@@ -366,7 +366,11 @@ pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
     let grid = match (raw.grid, cells) {
         (Some(RawGrid { rows, cols, .. }), Some((row, col))) => {
             // A valid point outside the grid leaves the grid unusable as a whole.
-            if row.iter().zip(&col).any(|(&r, &c)| r >= rows || c >= cols) {
+            if row
+                .par_iter()
+                .zip(&col)
+                .any(|(&r, &c)| r >= rows || c >= cols)
+            {
                 None
             } else {
                 Some(Grid {
