@@ -238,35 +238,22 @@ impl Write for Writer {
 pub fn read(path: &Path) -> io::Result<Vec<u8>> {
     let mut file = File::open(path)?;
     let size = file.metadata()?.len() as usize;
+    let mut out = Vec::with_capacity(size);
     if size < BLOCK || !try_direct(&file) {
-        if size >= BLOCK {
-            // The ordinary read below must not run with the flag half set.
-            sys::set_direct(&file, false);
-        }
-        let mut out = Vec::with_capacity(size);
         file.read_to_end(&mut out)?;
         return Ok(out);
     }
-    let mut out = Vec::with_capacity(size);
     let mut buf = Aligned::new();
     let mut direct = true;
     loop {
-        let got = if direct {
-            match file.read(buf.buf()) {
-                Ok(k) => k,
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-                Err(e) if refused(&e) && sys::set_direct(&file, false) => {
-                    direct = false;
-                    continue;
-                }
-                Err(e) => return Err(e),
+        let got = match file.read(buf.buf()) {
+            Ok(k) => k,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) if direct && refused(&e) && sys::set_direct(&file, false) => {
+                direct = false;
+                continue;
             }
-        } else {
-            match file.read(buf.buf()) {
-                Ok(k) => k,
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(e),
-            }
+            Err(e) => return Err(e),
         };
         if got == 0 {
             break;

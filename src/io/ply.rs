@@ -168,34 +168,7 @@ impl PlyFile {
     /// One scalar property of an element converted to f64, in row order. `None` if the element
     /// or property does not exist or the property is a list.
     pub fn scalar_column(&self, element: &str, prop: &str) -> Option<Vec<f64>> {
-        let (def, data) = self.element_parts(element)?;
-        let pi = def.props.iter().position(|p| p.name == prop)?;
-        let PropertyKind::Scalar(ty) = def.props.get(pi)?.kind else {
-            return None;
-        };
-        let layout = Layout::of(def, data)?;
-        let mut out = Vec::with_capacity(def.count);
-        match layout {
-            Layout::Fixed { stride, bytes } => {
-                let off = field_offset(&def.props, &[], pi)?;
-                if off + ty.size() > stride {
-                    return None;
-                }
-                // In range for every row (checked above), so each read succeeds.
-                bytes
-                    .par_chunks_exact(stride.max(1))
-                    .map(|row| ty.read_f64(row, off).unwrap_or(f64::NAN))
-                    .collect_into_vec(&mut out);
-            }
-            Layout::Rows { .. } => {
-                layout.for_each_row(|row| {
-                    let off = field_offset(&def.props, row, pi)?;
-                    out.push(ty.read_f64(row, off)?);
-                    Some(())
-                })?;
-            }
-        }
-        Some(out)
+        self.map_scalars(element, [prop], |[v]| v)
     }
 
     /// The lists of a list property as `u32` indices, one `Vec` per row (used for `range_grid`
@@ -618,8 +591,9 @@ impl PlyFile {
     }
 
     /// `f` of the values of scalar properties `props` of `element`, one result per row, in
-    /// one pass (in parallel for fixed-size rows). `None` under the same conditions as
-    /// [`PlyFile::scalar_column`] for any of the properties; values read as there.
+    /// one pass (in parallel for fixed-size rows). `None` when the element or a property is
+    /// missing or a list, or a fixed-size row is too short for a property; a value that cannot
+    /// be read in a fixed-size row is NaN, in other layouts it makes the whole answer `None`.
     pub fn map_scalars<const K: usize, T: Send>(
         &self,
         element: &str,

@@ -214,13 +214,8 @@ mod tests {
     /// pixels holding NaN, ∞ or garbage, valid pixels holding 0, −0, subnormals and ∞.
     #[test]
     fn equals_the_reference_bit_for_bit() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = crate::ssao::rng::Rng::new(7, 0);
+        let mut next = || rng.next_u64();
         let special = [
             0.0,
             -0.0,
