@@ -81,7 +81,12 @@ pub fn rasterize(
     let n = width * height;
     // Depth ≥ 0 so its f32 bit pattern orders like the value; pack (depth, index) so one
     // atomic min picks the nearest point.
-    let best: Vec<AtomicU64> = (0..n).map(|_| AtomicU64::new(u64::MAX)).collect();
+    // Every buffer is filled by a parallel pass (a collect writes straight into the new
+    // vector): a serial fill of ~10⁶ pixels kept a core idle while it faulted the pages in.
+    let best: Vec<AtomicU64> = (0..n)
+        .into_par_iter()
+        .map(|_| AtomicU64::new(u64::MAX))
+        .collect();
     pixels
         .par_iter()
         .zip(depths.par_iter())
@@ -92,34 +97,32 @@ pub fn rasterize(
                 best[px as usize].fetch_min(key, Ordering::Relaxed);
             }
         });
-    let mut g = GBuffer {
+    GBuffer {
         width,
         height,
-        point: vec![EMPTY; n],
-        depth: vec![f32::INFINITY; n],
-        position: vec![Vec3::ZERO; n],
-        normal: vec![Vec3::ZERO; n],
-        radius: vec![0.0; n],
-    };
-    g.point
-        .par_iter_mut()
-        .zip(g.depth.par_iter_mut())
-        .zip(g.position.par_iter_mut())
-        .zip(g.normal.par_iter_mut())
-        .zip(g.radius.par_iter_mut())
-        .zip(best.par_iter())
-        .for_each(|(((((pt, dp), pos), nrm), rad), b)| {
+        point: per_pixel(&best, EMPTY, |i| i as u32),
+        depth: per_pixel(&best, f32::INFINITY, |i| depths[i]),
+        position: per_pixel(&best, Vec3::ZERO, |i| points[i]),
+        normal: per_pixel(&best, Vec3::ZERO, |i| normals[i]),
+        radius: per_pixel(&best, 0.0, |i| radii[i]),
+    }
+}
+
+/// Per pixel, `value` of the nearest point (packed in `best`), or `empty`.
+fn per_pixel<T>(best: &[AtomicU64], empty: T, value: impl Fn(usize) -> T + Sync) -> Vec<T>
+where
+    T: Copy + Send + Sync,
+{
+    best.par_iter()
+        .map(|b| {
             let key = b.load(Ordering::Relaxed);
-            if key != u64::MAX {
-                let i = (key & 0xffff_ffff) as usize;
-                *pt = i as u32;
-                *dp = depths[i];
-                *pos = points[i];
-                *nrm = normals[i];
-                *rad = radii[i];
+            if key == u64::MAX {
+                empty
+            } else {
+                value((key & 0xffff_ffff) as usize)
             }
-        });
-    g
+        })
+        .collect()
 }
 
 #[cfg(test)]

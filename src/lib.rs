@@ -49,6 +49,7 @@ pub mod io;
 pub mod merge;
 pub mod outofcore;
 pub mod pagebuf;
+pub mod par;
 pub mod pipeline;
 pub mod plot;
 pub mod products;

@@ -271,6 +271,10 @@ fn join_writer(h: std::thread::ScopedJoinHandle<'_, Result<()>>) -> Result<()> {
 /// and the copy handed to the writer (8), and the cells' sort while they are built (16).
 const MERGE_BYTES_PER_POINT: u64 = 48;
 
+/// What reading the next scan's per-point products ahead holds per point at most: the file
+/// (16 bytes) and its decoded arrays (16).
+const AHEAD_BYTES_PER_POINT: u64 = 32;
+
 /// A cache of other scans' maps, bounded in bytes. The merge's order of loads is known in
 /// advance, so the map evicted is the one needed again the latest (Belady's rule): with a
 /// cyclic order, least-recently-used would miss every time once the maps do not all fit.
@@ -908,8 +912,19 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     // A file's outputs are written while the next file is merged, when the budget holds two
     // input files beside the maps.
     let overlap = 10 * max_file_bytes + 3 * out.plan.largest_view_bytes + (64 << 20) <= budget;
+    // The scans in the order they are merged.
+    let mut order = Vec::new();
+    for fi in 0..placer.len() {
+        order.extend((0..n).filter(|&i| cat[i].file == fi && selected(&cat[i])));
+    }
     std::thread::scope(|sc| -> Result<()> {
         let mut writing: Option<std::thread::ScopedJoinHandle<'_, Result<()>>> = None;
+        // The next scan's per-point products, read while this one merges.
+        let mut ahead: Option<(
+            usize,
+            std::thread::ScopedJoinHandle<'_, Result<products::points::Points>>,
+        )> = None;
+        let mut pos = 0;
         for fi in 0..placer.len() {
             let mine: Vec<usize> = (0..n)
                 .filter(|&i| cat[i].file == fi && selected(&cat[i]))
@@ -923,9 +938,21 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             for &i in &mine {
                 let s = &pf.scans[cat[i].index];
                 // The own maps come through the cache: they are other scans' partner maps too.
-                let own_pts = products::load_points(&work_dir, &cat[i].key)?;
+                let own_pts = match ahead.take() {
+                    Some((j, h)) if j == i => h.join().map_err(|_| {
+                        Error::Param("reading a points product failed (internal error)".into())
+                    })??,
+                    _ => products::load_points(&work_dir, &cat[i].key)?,
+                };
                 merge_read += view_bytes(0, s.len() as u64);
-                cache.reserve = MERGE_BYTES_PER_POINT * s.len() as u64;
+                pos += 1;
+                let next = order.get(pos).copied();
+                if let Some(j) = next {
+                    let (wd, key) = (&work_dir, cat[j].key.as_str());
+                    ahead = Some((j, sc.spawn(move || products::load_points(wd, key))));
+                }
+                cache.reserve = MERGE_BYTES_PER_POINT * s.len() as u64
+                    + next.map_or(0, |j| AHEAD_BYTES_PER_POINT * cat[j].points as u64);
                 cache.measure();
                 let own = cache.get(i, &work_dir, &cat[i].key, pixels_of(i), s.pose, &mp)?;
                 let (own_ssao, no_sample) =
@@ -977,10 +1004,19 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 let sum = sums[i]
                     .clone()
                     .ok_or_else(|| Error::Param("summary missing (internal error)".into()))?;
+                // Fixed chunks combined in order: the sum does not depend on the threads.
                 let (mn, mx, total) = ao
-                    .iter()
-                    .fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
-                        (a.0.min(v), a.1.max(v), a.2 + v as f64)
+                    .par_chunks(1 << 16)
+                    .map(|c| {
+                        c.iter()
+                            .fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, &v| {
+                                (a.0.min(v), a.1.max(v), a.2 + v as f64)
+                            })
+                    })
+                    .collect::<Vec<_>>()
+                    .into_iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY, 0.0f64), |a, b| {
+                        (a.0.min(b.0), a.1.max(b.1), a.2 + b.2)
                     });
                 out.scans.push(ScanReport {
                     name: s.name.clone(),

@@ -722,6 +722,8 @@ const MAX_HEADER_LINE: u64 = 64 << 10;
 const MAX_HEADER_BYTES: u64 = 16 << 20;
 /// Longest ascii token accepted.
 const MAX_TOKEN: usize = 4096;
+/// Reserved bulk reads at least this long are read by several threads.
+const PARALLEL_READ_MIN: usize = 8 << 20;
 /// Bulk reads grow their buffer by at most this much before data is seen.
 const BULK_CHUNK: usize = 64 << 20;
 /// Reservation cap when the file length is unknown (not a regular file).
@@ -1017,11 +1019,79 @@ impl Source<'_> {
         Ok(got)
     }
 
+    /// [`Source::append`] of `n` reserved bytes by several threads at once, each reading its
+    /// own stretch of the file at its offset (the file position is set past them after): the
+    /// copy out of the page cache and the faults of a fresh buffer no longer hold up one core
+    /// while the others wait for the decoding.
+    #[cfg(unix)]
+    fn append_parallel(&mut self, out: &mut Vec<u8>, n: usize) -> std::io::Result<usize> {
+        use std::io::{Seek, SeekFrom};
+        use std::mem::MaybeUninit;
+        use std::os::unix::fs::FileExt;
+        const CHUNK: usize = 4 << 20;
+        let start = out.len();
+        // What the buffered reader already holds comes first.
+        let held = self.r.buffer();
+        let head = held.len().min(n);
+        out.extend_from_slice(&held[..head]);
+        self.r.consume(head);
+        let at = self.pos + head as u64;
+        let rest = n - head;
+        out.spare_capacity_mut()[..rest]
+            .par_chunks_mut(CHUNK)
+            .for_each(|c| c.fill(MaybeUninit::new(0)));
+        // SAFETY: the `rest` bytes past the length were just initialised (and are reserved).
+        unsafe { out.set_len(start + head + rest) };
+        let file = self.r.get_ref();
+        let got: Vec<std::io::Result<usize>> = out[start + head..]
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .map(|(k, dst)| {
+                let mut done = 0;
+                while done < dst.len() {
+                    match file.read_at(&mut dst[done..], at + (k * CHUNK + done) as u64) {
+                        Ok(0) => break,
+                        Ok(m) => done += m,
+                        Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                        Err(e) => return Err(e),
+                    }
+                }
+                Ok(done)
+            })
+            .collect();
+        // The bytes up to the first short stretch (the end of the file).
+        let mut read = 0;
+        for (k, g) in got.into_iter().enumerate() {
+            let g = match g {
+                Ok(g) => g,
+                Err(e) => {
+                    out.truncate(start);
+                    return Err(e);
+                }
+            };
+            read += g;
+            if g < CHUNK.min(rest - k * CHUNK) {
+                break;
+            }
+        }
+        out.truncate(start + head + read);
+        if let Err(e) = self.r.seek(SeekFrom::Start(at + read as u64)) {
+            out.truncate(start);
+            return Err(e);
+        }
+        self.pos = at + read as u64;
+        Ok(head + read)
+    }
+
     /// Appends up to `n` bytes to `out`, growing it chunk by chunk so that a bogus `n` never
     /// allocates more than the data actually present; returns the number of bytes appended.
     fn append(&mut self, out: &mut Vec<u8>, n: usize) -> std::io::Result<usize> {
         let start = out.len();
         if out.capacity() - start >= n {
+            #[cfg(unix)]
+            if n >= PARALLEL_READ_MIN {
+                return self.append_parallel(out, n);
+            }
             // Already reserved (the file is known to hold the bytes): read straight into the
             // spare capacity, without zero-filling it first.
             let res = (&mut self.r).take(n as u64).read_to_end(out);
@@ -2053,6 +2123,42 @@ mod tests {
             .set_scalar_column("vertex", "nb", ScalarType::U8, &[1.0, 2.0, 3.0])
             .is_err());
         assert_same_content(&p, &round_trip(&p));
+    }
+
+    #[test]
+    fn bodies_read_by_several_threads_are_the_file_s_bytes() {
+        // Above PARALLEL_READ_MIN, with a stretch that does not end on a chunk, then a second
+        // element read after it from where the parallel read left the file.
+        let rows = (PARALLEL_READ_MIN + (4 << 20) + 4099) / 12;
+        for (format, le) in [("binary_little_endian", true), ("binary_big_endian", false)] {
+            let head = format!(
+                "ply\nformat {format} 1.0\nelement vertex {rows}\nproperty float x\n\
+                 property float y\nproperty float z\nelement tail 2\nproperty int k\nend_header\n"
+            );
+            let mut body = Vec::with_capacity(rows * 12 + 8);
+            for i in 0..rows * 3 {
+                let v = (i as f32) * 0.5;
+                body.extend_from_slice(&if le { v.to_le_bytes() } else { v.to_be_bytes() });
+            }
+            for k in [7i32, -9] {
+                body.extend_from_slice(&if le { k.to_le_bytes() } else { k.to_be_bytes() });
+            }
+            let p = read_ok(&ply(&head, &body));
+            let x = p.scalar_column("vertex", "x").unwrap();
+            let z = p.scalar_column("vertex", "z").unwrap();
+            assert_eq!(x.len(), rows);
+            for i in [0, 1, rows / 2, rows - 1] {
+                assert_eq!(x[i], (3 * i) as f64 * 0.5, "{format} row {i}");
+                assert_eq!(z[i], (3 * i + 2) as f64 * 0.5, "{format} row {i}");
+            }
+            assert_eq!(p.scalar_column("tail", "k").unwrap(), vec![7.0, -9.0]);
+            // One byte short: the same error as a serial read.
+            let msg = format_err(&ply(&head, &body[..body.len() - 1]));
+            assert_eq!(
+                msg,
+                "truncated: element 'tail' has 2 rows but data ends in row 1"
+            );
+        }
     }
 
     #[test]

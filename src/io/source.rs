@@ -404,14 +404,23 @@ pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
 /// The bounding-box centre of `xyz` (rounded to metres) when it lies beyond
 /// [`RECENTRE_ABOVE`], else zero.
 fn recentre_offset(xyz: &[[f64; 3]]) -> DVec3 {
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for p in xyz {
-        let v = DVec3::from_array(*p);
-        if v.is_finite() {
-            lo = lo.min(v);
-            hi = hi.max(v);
-        }
-    }
+    let none = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    // Fixed chunks combined in order: the same box whatever the threads.
+    let (lo, hi) = xyz
+        .par_chunks(1 << 16)
+        .map(|c| {
+            c.iter().fold(none, |(lo, hi), p| {
+                let v = DVec3::from_array(*p);
+                if v.is_finite() {
+                    (lo.min(v), hi.max(v))
+                } else {
+                    (lo, hi)
+                }
+            })
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold(none, |(lo, hi), (a, b)| (lo.min(a), hi.max(b)));
     if !lo.is_finite() || lo.abs().max(hi.abs()).max_element() <= RECENTRE_ABOVE {
         return DVec3::ZERO;
     }

@@ -43,7 +43,7 @@ pub fn laplacian(depth: &[f32], width: usize, height: usize, wrap_x: bool) -> Ve
     }
     let far = 2.0 * f64::from(max);
     let depth = &depth[..];
-    let mut out = vec![0.0f32; n];
+    let mut out = crate::par::filled(n, 0.0f32);
     out.par_chunks_mut(width)
         .enumerate()
         .with_min_len(ROWS_PER_TASK)
@@ -99,13 +99,12 @@ pub fn laplacian(depth: &[f32], width: usize, height: usize, wrap_x: bool) -> Ve
 /// values; missing Laplacian values count as 0.
 pub fn edge_mask(lap: &[f32], depth: &[f32], quantile: f32) -> Vec<bool> {
     let lap = fit(lap, depth.len(), 0.0);
-    let mut vals: Vec<f32> = lap
+    let valid = lap
         .par_iter()
         .zip(depth)
         .filter(|(_, d)| d.is_finite())
-        .map(|(l, _)| *l)
-        .collect();
-    if vals.is_empty() {
+        .count();
+    if valid == 0 {
         return vec![false; depth.len()];
     }
     let q = if quantile.is_nan() {
@@ -113,13 +112,71 @@ pub fn edge_mask(lap: &[f32], depth: &[f32], quantile: f32) -> Vec<bool> {
     } else {
         f64::from(quantile).clamp(0.0, 1.0)
     };
-    let rank = ((q * vals.len() as f64).ceil() as usize).clamp(1, vals.len());
-    let (_, tau, _) = vals.select_nth_unstable_by(rank - 1, f32::total_cmp);
-    let tau = *tau;
+    let rank = ((q * valid as f64).ceil() as usize).clamp(1, valid);
+    let tau = nth_valid(&lap, depth, rank - 1);
     lap.par_iter()
         .zip(depth)
         .map(|(&l, d)| d.is_finite() && l >= tau && l > EDGE_MIN_LAPLACIAN)
         .collect()
+}
+
+/// The key of `v` in [`f32::total_cmp`]'s order, as an unsigned integer.
+#[inline]
+fn order_key(v: f32) -> u32 {
+    let b = v.to_bits();
+    // Negative values: all bits flipped; others: the sign bit set.
+    b ^ ((((b as i32) >> 31) as u32) | 0x8000_0000)
+}
+
+/// The `k`-th smallest (0-based, in [`f32::total_cmp`]'s order) of the `lap` values whose
+/// `depth` is finite; `k` must be below their count. Exact, in two parallel passes instead of
+/// a serial selection over a million values: a histogram of the keys' top 16 bits finds the
+/// bucket holding the `k`-th, whose few values are then selected.
+fn nth_valid(lap: &[f32], depth: &[f32], k: usize) -> f32 {
+    const BUCKETS: usize = 1 << 16;
+    let top = |v: f32| (order_key(v) >> 16) as usize;
+    let hist = lap
+        .par_chunks(1 << 16)
+        .zip(depth.par_chunks(1 << 16))
+        .fold(
+            || vec![0usize; BUCKETS],
+            |mut h, (l, d)| {
+                for (&l, d) in l.iter().zip(d) {
+                    if d.is_finite() {
+                        h[top(l)] += 1;
+                    }
+                }
+                h
+            },
+        )
+        .reduce(
+            || vec![0usize; BUCKETS],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    *x += y;
+                }
+                a
+            },
+        );
+    let (mut below, mut bucket) = (0usize, BUCKETS - 1);
+    for (b, &c) in hist.iter().enumerate() {
+        if below + c > k {
+            bucket = b;
+            break;
+        }
+        below += c;
+    }
+    let mut vals: Vec<f32> = lap
+        .par_iter()
+        .zip(depth)
+        .filter(|(&l, d)| d.is_finite() && top(l) == bucket)
+        .map(|(&l, _)| l)
+        .collect();
+    let r = (k - below).min(vals.len().saturating_sub(1));
+    match vals.get(r) {
+        Some(_) => *vals.select_nth_unstable_by(r, f32::total_cmp).1,
+        None => f32::NAN,
+    }
 }
 
 /// Euclidean distance in pixels from every pixel to the nearest seed, by jump flooding.
@@ -159,7 +216,7 @@ pub fn brute_force_distance(seeds: &[bool], width: usize, height: usize, wrap_x:
         .filter(|(_, s)| **s)
         .map(|(i, _)| (i % width, i / width))
         .collect();
-    let mut out = vec![f32::INFINITY; n];
+    let mut out = crate::par::filled(n, f32::INFINITY);
     if list.is_empty() {
         return out;
     }
@@ -446,7 +503,7 @@ fn flood<C: Cell>(
     wrap_x: bool,
     steps: &[usize],
 ) -> Vec<f32> {
-    let mut a: Vec<C> = vec![C::NONE; width * height];
+    let mut a: Vec<C> = crate::par::filled(width * height, C::NONE);
     a.par_chunks_mut(width)
         .zip(seeds.par_chunks(width))
         .enumerate()
@@ -457,12 +514,12 @@ fn flood<C: Cell>(
                 }
             }
         });
-    let mut b: Vec<C> = vec![C::NONE; width * height];
+    let mut b: Vec<C> = crate::par::filled(width * height, C::NONE);
     for &k in steps {
         jfa_pass(&a, &mut b, width, height, k, wrap_x);
         std::mem::swap(&mut a, &mut b);
     }
-    let mut out = vec![f32::INFINITY; width * height];
+    let mut out = crate::par::filled(width * height, f32::INFINITY);
     out.par_chunks_mut(width)
         .zip(a.par_chunks(width))
         .enumerate()
@@ -740,6 +797,48 @@ mod tests {
         // All empty → all zero.
         assert_eq!(laplacian(&[INF; 4], 2, 2, true), vec![0.0; 4]);
         assert!(laplacian(&[], 0, 3, false).is_empty());
+    }
+
+    #[test]
+    fn nth_valid_equals_a_sort() {
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for n in [1usize, 2, 5, 300, 70_000, 200_003] {
+            for round in 0..3 {
+                let lap: Vec<f32> = (0..n)
+                    .map(|_| match (next() % 16, round) {
+                        (0, _) => -0.0,
+                        (1, _) => 0.0,
+                        (2, _) => f32::INFINITY,
+                        (3, 2) => -1.5,
+                        // Few distinct values on round 1: ties.
+                        (_, 1) => (next() % 5) as f32 * 0.25,
+                        _ => f32::from_bits(next() as u32 & 0x7f7f_ffff),
+                    })
+                    .collect();
+                let depth: Vec<f32> = (0..n).map(|i| if i % 7 == 3 { INF } else { 1.0 }).collect();
+                let mut valid: Vec<f32> = lap
+                    .iter()
+                    .zip(&depth)
+                    .filter(|(_, d)| d.is_finite())
+                    .map(|(l, _)| *l)
+                    .collect();
+                valid.sort_by(f32::total_cmp);
+                for k in [0, valid.len() / 2, valid.len() * 95 / 100, valid.len() - 1] {
+                    let got = nth_valid(&lap, &depth, k);
+                    assert_eq!(
+                        got.to_bits(),
+                        valid[k].to_bits(),
+                        "n {n} round {round} k {k}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

@@ -37,6 +37,9 @@ const ROUNDING_PER_EXTENT: f64 = 1e-5;
 /// A set of hashed cell keys. Keys are already mixed, so the hasher passes them through.
 type KeySet = HashSet<u64, BuildHasherDefault<KeyHasher>>;
 
+/// Cells, sorted.
+type CellList = Vec<[i64; 3]>;
+
 #[derive(Default)]
 struct KeyHasher(u64);
 
@@ -149,14 +152,34 @@ impl Cells {
                     *o = last.1;
                 }
             });
-        let mut rmax = vec![0.0f32; cells.len()];
-        for (&c, &r) in of.iter().zip(radii) {
-            let m = &mut rmax[c as usize];
-            // A NaN radius must stay: it disables the test for its cell.
+        // A NaN radius must stay: it disables the test for its cell. The result does not
+        // depend on the order (the largest radius, or NaN if any), so chunks fold apart.
+        let raise = |m: &mut f32, r: f32| {
             if !(r <= *m) && !m.is_nan() {
                 *m = r;
             }
-        }
+        };
+        // Two chunks a thread at most: each holds a radius per cell.
+        let chunk = n.div_ceil(2 * rayon::current_num_threads()).max(1 << 16);
+        let rmax = of
+            .par_chunks(chunk)
+            .zip(radii.par_chunks(chunk))
+            .fold(
+                || vec![0.0f32; cells.len()],
+                |mut m, (of, radii)| {
+                    for (&c, &r) in of.iter().zip(radii) {
+                        raise(&mut m[c as usize], r);
+                    }
+                    m
+                },
+            )
+            .reduce_with(|mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    raise(x, y);
+                }
+                a
+            })
+            .unwrap_or_else(|| vec![0.0f32; cells.len()]);
         let cells = Cells {
             base,
             sigma,
@@ -281,8 +304,8 @@ impl ViewCells {
     pub fn new(g: &GBuffer, pose: DMat4) -> ViewCells {
         let (points, radii): (Vec<Vec3>, Vec<f32>) = g
             .point
-            .iter()
-            .zip(g.position.iter().zip(&g.radius))
+            .par_iter()
+            .zip(g.position.par_iter().zip(&g.radius))
             .filter(|(p, _)| **p != EMPTY)
             .map(|(_, (q, r))| (*q, *r))
             .unzip();
@@ -311,8 +334,9 @@ impl ViewCells {
                 _ => return unbounded,
             }
         }
-        let mut upto = Vec::with_capacity(SET_LEVELS as usize + 1);
-        let mut exact = Vec::with_capacity(SET_LEVELS as usize + 1);
+        // Per level, the cells up to it and the cells of it; their grown sets are built in
+        // parallel (the largest, at the base level, alone took a core for tens of ms).
+        let mut lists: Vec<(CellList, CellList)> = Vec::new();
         let mut below: Vec<[i64; 3]> = Vec::new();
         for d in 0..=SET_LEVELS {
             let own: Vec<[i64; 3]> = c
@@ -326,13 +350,12 @@ impl ViewCells {
             below.extend_from_slice(&own);
             below.sort_unstable();
             below.dedup();
-            upto.push(grown(&below));
-            exact.push(if d > 0 {
-                grown(&own)
-            } else {
-                KeySet::default()
-            });
+            lists.push((below.clone(), if d > 0 { own } else { Vec::new() }));
         }
+        let (upto, exact): (Vec<KeySet>, Vec<KeySet>) = lists
+            .par_iter()
+            .map(|(upto, own)| rayon::join(|| grown(upto), || grown(own)))
+            .unzip();
         large.sort_unstable_by_key(|e| e.0);
         let mut wide: Vec<(i32, KeySet)> = Vec::new();
         for (at, k, n) in large {

@@ -141,8 +141,8 @@ impl Accum {
     /// Empty sums for `n` points.
     pub fn new(n: usize) -> Accum {
         Accum {
-            num: vec![0.0; n],
-            den: vec![0.0; n],
+            num: crate::par::filled(n, 0.0),
+            den: crate::par::filled(n, 0.0),
             stats: MergeStats::default(),
         }
     }
@@ -150,20 +150,27 @@ impl Accum {
     /// The merged AO: Σ SSAO·w / Σ w, or the point's own SSAO (counted) where Σ w = 0.
     pub fn finish(self, own: &[f32]) -> (Vec<f32>, MergeStats) {
         let mut st = self.stats;
+        let weighed = |n: f32, d: f32| d > 0.0 && n.is_finite();
         let out = self
             .num
-            .iter()
+            .par_iter()
             .zip(&self.den)
             .zip(own)
             .map(|((&n, &d), &o)| {
-                if d > 0.0 && n.is_finite() {
+                if weighed(n, d) {
                     (n / d).clamp(0.0, 1.0)
                 } else {
-                    st.zero_weight += 1;
                     o
                 }
             })
             .collect();
+        st.zero_weight += self
+            .num
+            .par_iter()
+            .zip(&self.den)
+            .zip(own)
+            .filter(|((&n, &d), _)| !weighed(n, d))
+            .count() as u64;
         (out, st)
     }
 }

@@ -60,11 +60,11 @@ where
 /// Zeroed radii and (when wanted, else empty) normals for `n` points.
 fn outputs(n: usize, need_normals: bool) -> (Vec<f32>, Vec<Vec3>) {
     let normals = if need_normals {
-        vec![Vec3::ZERO; n]
+        crate::par::filled(n, Vec3::ZERO)
     } else {
         Vec::new()
     };
-    (vec![0.0f32; n], normals)
+    (crate::par::filled(n, 0.0f32), normals)
 }
 
 /// Points per parallel work item.
@@ -118,12 +118,12 @@ where
     // window row is one contiguous run instead of two dependent gathers per cell: for radii
     // alone one array per coordinate (four cells per instruction), with normals one of
     // 16-byte positions (the candidates are packed one at a time anyway).
-    let mut at = vec![u32::MAX; cells];
+    let mut at = crate::par::filled(cells, u32::MAX);
     let soa = if need_normals { 0 } else { cells };
     // One allocation for the three coordinate arrays (the allocator keeps freed memory
     // when every view fits: fewer, larger blocks fragment its heap less).
-    let mut xyz = vec![f32::NAN; 3 * soa];
-    let mut gp = vec![Vec3A::NAN; cells - soa];
+    let mut xyz = crate::par::filled(3 * soa, f32::NAN);
+    let mut gp = crate::par::filled(cells - soa, Vec3A::NAN);
     {
         let (gx, rest) = xyz.split_at_mut(soa);
         let (gy, gz) = rest.split_at_mut(soa);

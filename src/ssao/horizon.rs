@@ -104,8 +104,8 @@ use std::f32::consts::{FRAC_PI_2, PI, TAU};
 /// the G-buffer's cannot be marched: every valid pixel is then flagged.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     let n = g.width * g.height;
-    let mut ao = vec![1.0f32; n];
-    let mut flag = vec![false; n];
+    let mut ao = crate::par::filled(n, 1.0f32);
+    let mut flag = crate::par::filled(n, false);
     let consistent = [
         g.point.len(),
         g.position.len(),
