@@ -801,13 +801,8 @@ mod tests {
 
     #[test]
     fn nth_valid_equals_a_sort() {
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = crate::ssao::rng::Rng::new(11, 0);
+        let mut next = || rng.next_u64();
         for n in [1usize, 2, 5, 300, 70_000, 200_003] {
             for round in 0..3 {
                 let lap: Vec<f32> = (0..n)
