@@ -48,23 +48,39 @@ pub fn point_pixels(
     proj: &Projection,
     grid_pixels: Option<&[u32]>,
 ) -> (Vec<u32>, Vec<f32>) {
-    points
-        .par_iter()
+    let n = points.len();
+    let (mut pixels, mut depths) = (
+        crate::par::filled(n, EMPTY),
+        crate::par::filled(n, f32::INFINITY),
+    );
+    // Four points per projection (the same values as one at a time).
+    const CHUNK: usize = 4096;
+    pixels
+        .par_chunks_mut(CHUNK)
+        .zip(depths.par_chunks_mut(CHUNK))
+        .zip(points.par_chunks(CHUNK))
         .enumerate()
-        .map(|(i, &p)| match proj.project(p) {
-            Some(pr) if pr.depth.is_finite() => {
-                let px = match grid_pixels {
-                    Some(g) => g[i],
-                    None => proj
-                        .pixel_index(pr.x, pr.y)
-                        .map(|v| v as u32)
-                        .unwrap_or(EMPTY),
-                };
-                (px, pr.depth)
+        .for_each(|(ci, ((px, dp), pts))| {
+            for (g, four) in pts.chunks(4).enumerate() {
+                let mut p = [Vec3::ZERO; 4];
+                p[..four.len()].copy_from_slice(four);
+                for (l, pr) in proj.project4(p).into_iter().take(four.len()).enumerate() {
+                    let Some(pr) = pr.filter(|pr| pr.depth.is_finite()) else {
+                        continue;
+                    };
+                    let k = g * 4 + l;
+                    px[k] = match grid_pixels {
+                        Some(gp) => gp[ci * CHUNK + k],
+                        None => proj
+                            .pixel_index(pr.x, pr.y)
+                            .map(|v| v as u32)
+                            .unwrap_or(EMPTY),
+                    };
+                    dp[k] = pr.depth;
+                }
             }
-            _ => (EMPTY, f32::INFINITY),
-        })
-        .unzip()
+        });
+    (pixels, depths)
 }
 
 /// Rasterizes points into a `width × height` G-buffer keeping the nearest point per pixel

@@ -348,3 +348,93 @@ fn footprints_say_when_there_is_no_bound() {
         0
     );
 }
+
+#[test]
+fn four_points_project_as_one_at_a_time() {
+    let knots: Vec<f32> = (0..50).map(|k| (k as f32).powf(1.3)).collect();
+    let mut tilted = full_sphere(1440, 720);
+    if let Model::Equirect { rot, az_ref, .. } = &mut tilted.model {
+        *rot = Mat3::from_rotation_y(0.4) * Mat3::from_rotation_z(2.9);
+        *az_ref = -3.1;
+    }
+    let mut warped = full_sphere(50, 40);
+    warped.warp_x = Warp::new(knots.clone());
+    warped.warp_y = Warp::new(knots[..40].to_vec());
+    let camera = Projection::new(
+        Model::Perspective {
+            rot: Mat3::from_rotation_y(0.3),
+            a: Mat2::from_cols(Vec2::new(500.0, 3.0), Vec2::new(-2.0, 480.0)),
+            c: Vec2::new(320.0, 240.0),
+        },
+        640,
+        480,
+        false,
+    );
+    // Axes, signed zeros, the poles, behind the sensor, non-finite and huge coordinates.
+    let special = [
+        Vec3::ZERO,
+        Vec3::new(-0.0, 0.0, 1.0),
+        Vec3::new(0.0, -0.0, -1.0),
+        Vec3::new(-1.0, 0.0, 0.0),
+        Vec3::new(-1.0, -0.0, 0.0),
+        Vec3::new(0.0, 2.0, 0.0),
+        Vec3::new(0.0, -2.0, 0.0),
+        Vec3::new(f32::NAN, 1.0, 1.0),
+        Vec3::new(1.0, f32::INFINITY, 0.0),
+        Vec3::new(3e19, -3e19, 1e19),
+        Vec3::new(1e-30, 0.0, -1e-30),
+    ];
+    let mut rng = Rng::new(5, 0);
+    let mut pts: Vec<Vec3> = special.to_vec();
+    for _ in 0..4000 {
+        let v = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+        pts.push(v * (0.01 + 30.0 * rng.next_f32()));
+    }
+    let bits = |p: Option<mvao::projection::Projected>| {
+        p.map(|p| (p.x.to_bits(), p.y.to_bits(), p.depth.to_bits()))
+    };
+    for proj in [&full_sphere(1440, 720), &tilted, &warped, &camera] {
+        for (g, four) in pts.chunks_exact(4).enumerate() {
+            let got = proj.project4([four[0], four[1], four[2], four[3]]);
+            for (l, (&p, q)) in four.iter().zip(got).enumerate() {
+                assert_eq!(bits(q), bits(proj.project(p)), "group {g} lane {l}: {p:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn four_lane_arctangent_is_the_scalar_one() {
+    use glam::Vec4;
+    use mvao::projection::{atan2_4, fast_atan2};
+    let v = [
+        0.0f32,
+        -0.0,
+        1.0,
+        -1.0,
+        0.5,
+        -2.5,
+        1e-30,
+        -3e38,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NAN,
+        f32::MIN_POSITIVE,
+    ];
+    let pairs: Vec<(f32, f32)> = v
+        .iter()
+        .flat_map(|&y| v.iter().map(move |&x| (y, x)))
+        .collect();
+    for g in pairs.chunks_exact(4) {
+        let y = Vec4::new(g[0].0, g[1].0, g[2].0, g[3].0);
+        let x = Vec4::new(g[0].1, g[1].1, g[2].1, g[3].1);
+        let got = atan2_4(y, x).to_array();
+        for (l, &(y, x)) in g.iter().enumerate() {
+            assert_eq!(
+                got[l].to_bits(),
+                fast_atan2(y, x).to_bits(),
+                "atan2({y}, {x})"
+            );
+        }
+    }
+}

@@ -223,6 +223,40 @@ pub fn accumulate(
         }
         _ => None,
     };
+    // Eq. 7–12 for target point `k` of a chunk at `q` (view j's frame), whose image is in
+    // pixel `(cx, cy)` of view j.
+    let visit = |k: usize,
+                 pi: usize,
+                 q: Vec3,
+                 (cx, cy): (i64, i64),
+                 num: &mut [f32],
+                 den: &mut [f32],
+                 st: &mut MergeStats| {
+        st.point_views += 1;
+        let rad_i = t.radii[pi];
+        for dy in -half..=half {
+            for dx in -half..=half {
+                let Some(idx) = v.proj.pixel_at(cx + dx, cy + dy) else {
+                    continue;
+                };
+                let (Some(near), Some(rest)) = (m.near.get(idx), m.rest.get(idx)) else {
+                    continue;
+                };
+                let (p_ij, rad_ij) = (near.truncate(), near.w);
+                if rad_ij == f32::NEG_INFINITY || !within(q, p_ij, rad_i, rad_ij) {
+                    continue;
+                }
+                let n_ij = Vec3::new(rest[0], rest[1], rest[2]);
+                if !faces(p_ij, n_ij, b) {
+                    continue;
+                }
+                let w = rest[3] * w_border(rest[5], prm.border_px, rad_i, rad_ij);
+                st.samples_kept += 1;
+                num[k] += rest[4] * w;
+                den[k] += w;
+            }
+        }
+    };
     let st = acc
         .num
         .par_chunks_mut(CHUNK)
@@ -231,6 +265,24 @@ pub fn accumulate(
         .map(|(ci, (num, den))| {
             let base = ci * CHUNK;
             let mut st = MergeStats::default();
+            // Points of other scans are projected four at a time (the same pixels as one at
+            // a time); `held` are those waiting for a full group.
+            let mut held = [(0usize, Vec3::ZERO); 4];
+            let mut n_held = 0;
+            let project =
+                |held: &[(usize, Vec3)], num: &mut [f32], den: &mut [f32], st: &mut MergeStats| {
+                    let mut four = [Vec3::ZERO; 4];
+                    for (f, h) in four.iter_mut().zip(held) {
+                        *f = h.1;
+                    }
+                    let pr = v.proj.project4(four);
+                    for (&(k, q), pr) in held.iter().zip(pr) {
+                        if let Some(pr) = pr {
+                            let px = (floor_i64(pr.x), floor_i64(pr.y));
+                            visit(k, base + k, q, px, num, den, st);
+                        }
+                    }
+                };
             for k in 0..num.len() {
                 let pi = base + k;
                 if let Some((pc, keep)) = &keep {
@@ -239,49 +291,25 @@ pub fn accumulate(
                         continue;
                     }
                 }
-                let (q, cx, cy) = if j == t.index {
+                if j == t.index {
                     let px = t.own_pixel[pi];
                     if px == EMPTY {
                         continue;
                     }
                     let w = m.width.max(1);
-                    (
-                        t.points[pi],
-                        (px as usize % w) as i64,
-                        (px as usize / w) as i64,
-                    )
+                    let at = ((px as usize % w) as i64, (px as usize / w) as i64);
+                    visit(k, pi, t.points[pi], at, num, den, &mut st);
                 } else {
                     let q: Vec3 = rel.transform_point3a(Vec3A::from(t.points[pi])).into();
-                    let Some(pr) = v.proj.project(q) else {
-                        continue;
-                    };
-                    (q, floor_i64(pr.x), floor_i64(pr.y))
-                };
-                st.point_views += 1;
-                let rad_i = t.radii[pi];
-                for dy in -half..=half {
-                    for dx in -half..=half {
-                        let Some(idx) = v.proj.pixel_at(cx + dx, cy + dy) else {
-                            continue;
-                        };
-                        let (Some(near), Some(rest)) = (m.near.get(idx), m.rest.get(idx)) else {
-                            continue;
-                        };
-                        let (p_ij, rad_ij) = (near.truncate(), near.w);
-                        if rad_ij == f32::NEG_INFINITY || !within(q, p_ij, rad_i, rad_ij) {
-                            continue;
-                        }
-                        let n_ij = Vec3::new(rest[0], rest[1], rest[2]);
-                        if !faces(p_ij, n_ij, b) {
-                            continue;
-                        }
-                        let w = rest[3] * w_border(rest[5], prm.border_px, rad_i, rad_ij);
-                        st.samples_kept += 1;
-                        num[k] += rest[4] * w;
-                        den[k] += w;
+                    held[n_held] = (k, q);
+                    n_held += 1;
+                    if n_held == 4 {
+                        project(&held, num, den, &mut st);
+                        n_held = 0;
                     }
                 }
             }
+            project(&held[..n_held], num, den, &mut st);
             progress(num.len() as u64);
             st
         })

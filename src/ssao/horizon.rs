@@ -92,7 +92,7 @@ use super::rng::Rng;
 use super::{AoMap, SsaoParams};
 use crate::gbuffer::{GBuffer, EMPTY};
 use crate::pagebuf::PageBuf;
-use crate::projection::{fast_atan2, Projection, ATAN_COEFFS};
+use crate::projection::{atan2_4, fast_atan2, sqrt4, Projection};
 use glam::{BVec4A, Vec3A, Vec4};
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
@@ -450,19 +450,23 @@ impl<'a> Ctx<'a> {
         let a = f.a;
         let (av, b) = (Vec4::splat(a), Vec4::from_array(bs));
         // Slice::new on four lanes (a is the pixel's, so its branch is the same for all).
-        let r = sqrt_lanes(Vec4::splat(a * a) + b * b);
+        let r = sqrt4(Vec4::splat(a * a) + b * b);
         let ok = lanes & r.cmpgt(Vec4::splat(1e-6)) & r.is_finite_mask();
         let inv_r = Vec4::ONE / r;
         let (ca, sb) = (av * inv_r, b * inv_r);
         let (lo, lo_s, lo_c, hi, hi_s, hi_c, g_lo, g_hi);
         if a > 0.0 {
             (lo, lo_s, lo_c) = (Vec4::ZERO, Vec4::ZERO, Vec4::ONE);
-            hi = atan2_lanes(b, a) + Vec4::splat(FRAC_PI_2);
+            hi = atan2_4(b, Vec4::splat(a)) + Vec4::splat(FRAC_PI_2);
             (hi_s, hi_c) = (ca, -sb);
             g_lo = Vec4::splat(-0.25 * a);
             g_hi = Vec4::splat(0.25 * a) + Vec4::splat(0.5) * b * hi;
         } else {
-            let gn = Vec4::select(b.cmpeq(Vec4::ZERO), Vec4::splat(PI), atan2_lanes(b, a));
+            let gn = Vec4::select(
+                b.cmpeq(Vec4::ZERO),
+                Vec4::splat(PI),
+                atan2_4(b, Vec4::splat(a)),
+            );
             lo = Vec4::select(
                 gn.cmplt(Vec4::splat(FRAC_PI_2)),
                 gn + Vec4::splat(1.5 * PI),
@@ -483,12 +487,12 @@ impl<'a> Ctx<'a> {
             let (co, s) = (Vec4::from_array(cs), Vec4::from_array(sn));
             let x = co * d1.0 + s * d2.0;
             let y = co * d1.1 + s * d2.1;
-            let len = sqrt_lanes(x * x + y * y);
+            let len = sqrt4(x * x + y * y);
             let dir_ok = len.cmpgt(Vec4::ZERO) & len.is_finite_mask();
             let (dx, dy) = (x / len, y / len);
             let (idx, idy) = (Vec4::ONE / dx, Vec4::ONE / dy);
-            let ellipse = Vec4::ONE
-                / sqrt_lanes(dx * dx * Vec4::splat(f.irx2) + dy * dy * Vec4::splat(f.iry2));
+            let ellipse =
+                Vec4::ONE / sqrt4(dx * dx * Vec4::splat(f.irx2) + dy * dy * Vec4::splat(f.iry2));
             let mut reach = min_lanes(ellipse, exit_lanes(f.o.1, idy, self.hf));
             reach = min_lanes(reach, Vec4::splat(self.wf + self.hf));
             if !self.wrap {
@@ -801,45 +805,6 @@ fn above_horizon_lanes(x: Vec4, y: Vec4, cos_h: Vec4) -> BVec4A {
 fn smooth(x: f32) -> f32 {
     let x = x.clamp(0.0, 1.0);
     x * x * (3.0 - 2.0 * x)
-}
-
-/// [`fast_atan2`] of `(y, x)` on four lanes of `y` (same operations, selects for branches).
-#[inline(always)]
-fn atan2_lanes(y: Vec4, x: f32) -> Vec4 {
-    let (ax, ay) = (Vec4::splat(x.abs()), y.abs());
-    let swap = ax.cmplt(ay);
-    let (mn, mx) = (Vec4::select(swap, ax, ay), Vec4::select(swap, ay, ax));
-    let q = mn / mx;
-    let s = q * q;
-    let c = |v: f32| Vec4::splat(v);
-    // The same Horner's rule as the scalar one.
-    let (&top, rest) = ATAN_COEFFS.split_last().unwrap_or((&0.0, &[]));
-    let mut r = q * rest.iter().rev().fold(c(top), |acc, &k| c(k) + s * acc);
-    r = Vec4::select(ay.cmpgt(ax), c(FRAC_PI_2) - r, r);
-    if x < 0.0 {
-        r = c(PI) - r;
-    }
-    let special = if x < 0.0 || (x == 0.0 && x.is_sign_negative()) {
-        PI
-    } else {
-        0.0
-    };
-    Vec4::select(mx.cmpgt(Vec4::ZERO), r, c(special)).copysign(y)
-}
-
-/// `f32::sqrt` on four lanes (correctly rounded, as the scalar one).
-#[inline(always)]
-fn sqrt_lanes(v: Vec4) -> Vec4 {
-    #[cfg(all(target_arch = "x86_64", target_feature = "sse2"))]
-    {
-        use std::arch::x86_64::_mm_sqrt_ps;
-        // SAFETY: SSE2 is enabled (checked by the cfg).
-        Vec4::from(unsafe { _mm_sqrt_ps(v.into()) })
-    }
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "sse2")))]
-    {
-        Vec4::from_array(v.to_array().map(f32::sqrt))
-    }
 }
 
 /// `f32::min` on four lanes: the non-NaN operand when one is NaN.
