@@ -17,7 +17,7 @@
 //! the reverse: merged values are identical with and without it.
 
 use crate::gbuffer::{GBuffer, EMPTY};
-use crate::scan::occupancy::{world_cell, world_cells};
+use crate::scan::occupancy::{world_cells_and_runs, RUN_CHUNK};
 use glam::{DMat4, DVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashSet;
@@ -135,21 +135,16 @@ impl Cells {
         };
         let base = base_level(radii, diag);
         let sigma = ROUNDING_PER_EXTENT * 3f64.sqrt() * f64::from(ext);
-        let cells = world_cells(points, pose, base);
-        let inv = (-(base as f64)).exp2();
-        const CHUNK: usize = 8192;
-        // Each point's cell: consecutive points mostly share one, so the last is tried first.
+        let (cells, runs) = world_cells_and_runs(points, pose, base);
+        // Each point's cell, one search per run of points in the same cell.
         let mut of = vec![0u32; n];
-        of.par_chunks_mut(CHUNK)
-            .zip(points.par_chunks(CHUNK))
-            .for_each(|(o, c)| {
-                let mut last = ([i64::MIN; 3], 0u32);
-                for (o, p) in o.iter_mut().zip(c) {
-                    let k = world_cell(*p, &pose, inv);
-                    if k != last.0 {
-                        last = (k, cells.binary_search(&k).unwrap_or(0) as u32);
-                    }
-                    *o = last.1;
+        of.par_chunks_mut(RUN_CHUNK)
+            .zip(runs.par_iter())
+            .for_each(|(o, runs)| {
+                for (r, &(start, k)) in runs.iter().enumerate() {
+                    let end = runs.get(r + 1).map_or(o.len(), |x| x.0 as usize);
+                    let c = cells.binary_search(&k).unwrap_or(0) as u32;
+                    o[start as usize..end].fill(c);
                 }
             });
         // A NaN radius must stay: it disables the test for its cell. The result does not

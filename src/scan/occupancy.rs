@@ -9,7 +9,7 @@
 
 use super::Scan;
 use crate::projection::floor_f64;
-use glam::DVec3;
+use glam::{DMat4, DVec3};
 use rayon::prelude::*;
 
 /// Cells along the diagonal of a scan's box at its own level: fine enough to separate rooms,
@@ -64,28 +64,53 @@ pub fn world_cell(p: glam::Vec3, pose: &glam::DMat4, inv: f64) -> [i64; 3] {
 }
 
 /// The distinct world cells of `points` placed by `pose` at `level`, sorted.
-pub fn world_cells(points: &[glam::Vec3], pose: glam::DMat4, level: i32) -> Vec<[i64; 3]> {
+pub fn world_cells(points: &[glam::Vec3], pose: DMat4, level: i32) -> Vec<[i64; 3]> {
+    world_cells_and_runs(points, pose, level).0
+}
+
+/// Points per chunk of [`world_cells_and_runs`]' runs.
+pub const RUN_CHUNK: usize = 4096;
+
+/// One chunk's runs of consecutive points in one cell: (offset of the run's first point in
+/// the chunk, cell).
+pub type Runs = Vec<(u32, [i64; 3])>;
+
+/// [`world_cells`], and for each chunk of [`RUN_CHUNK`] points its runs of consecutive points
+/// in one cell: (offset of the run's first point in the chunk, cell). Neighbouring points
+/// mostly share a cell, so the runs are few and say every point's cell without placing it
+/// again.
+pub fn world_cells_and_runs(
+    points: &[glam::Vec3],
+    pose: DMat4,
+    level: i32,
+) -> (Vec<[i64; 3]>, Vec<Runs>) {
     let inv = (-level as f64).exp2();
-    // Neighbouring points mostly share a cell: dropping repeats within a chunk keeps the
-    // sort small.
-    let mut cells: Vec<[i64; 3]> = points
-        .par_chunks(4096)
-        .flat_map_iter(|c| {
-            let mut out: Vec<[i64; 3]> = Vec::new();
-            for p in c {
+    let runs: Vec<Runs> = points
+        .par_chunks(RUN_CHUNK)
+        .map(|c| {
+            let mut out: Runs = Vec::new();
+            for (o, p) in c.iter().enumerate() {
                 let k = world_cell(*p, &pose, inv);
-                if out.last() != Some(&k) {
-                    out.push(k);
+                if out.last().map(|r| r.1) != Some(k) {
+                    out.push((o as u32, k));
                 }
             }
-            out.sort_unstable();
-            out.dedup();
             out
+        })
+        .collect();
+    // Dropping repeats within a chunk keeps the sort small.
+    let mut cells: Vec<[i64; 3]> = runs
+        .par_iter()
+        .flat_map_iter(|r| {
+            let mut k: Vec<[i64; 3]> = r.iter().map(|r| r.1).collect();
+            k.sort_unstable();
+            k.dedup();
+            k
         })
         .collect();
     cells.par_sort_unstable();
     cells.dedup();
-    cells
+    (cells, runs)
 }
 
 /// Pair tests of a set of scans for one reach: whether some point of scan `i` may lie within
