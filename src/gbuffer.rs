@@ -96,9 +96,9 @@ pub fn rasterize(
 ) -> GBuffer {
     let n = width * height;
     // Depth ≥ 0 so its f32 bit pattern orders like the value; pack (depth, index) so one
-    // atomic min picks the nearest point.
-    // Every buffer is filled by a parallel pass (a collect writes straight into the new
-    // vector): a serial fill of ~10⁶ pixels kept a core idle while it faulted the pages in.
+    // atomic min picks the nearest point. Every buffer is filled by a parallel pass (a
+    // collect writes straight into the new vector): a serial fill of ~10⁶ pixels kept a core
+    // idle while it faulted the pages in.
     let best: Vec<AtomicU64> = (0..n)
         .into_par_iter()
         .map(|_| AtomicU64::new(u64::MAX))

@@ -240,14 +240,19 @@ impl Projection {
     /// perspective camera, or non-finite). The result may lie outside the map.
     #[inline]
     pub fn project(&self, p: Vec3) -> Option<Projected> {
-        let mut pr = self.project_linear(p)?;
+        self.project_linear(p).map(|pr| self.warped(pr))
+    }
+
+    /// `pr` through the grid warps, where there are any.
+    #[inline]
+    fn warped(&self, mut pr: Projected) -> Projected {
         if let Some(w) = &self.warp_x {
             pr.x = w.apply(pr.x);
         }
         if let Some(w) = &self.warp_y {
             pr.y = w.apply(pr.y);
         }
-        Some(pr)
+        pr
     }
 
     /// [`Projection::project`] of four points at once: the same values, bit for bit (a test
@@ -285,18 +290,11 @@ impl Projection {
             if ok & (1 << l) == 0 {
                 continue;
             }
-            let mut pr = Projected {
+            *o = Some(self.warped(Projected {
                 x: sx * wrap_angle(az[l]) + ox,
                 y: sy * el[l] + oy,
                 depth: depth[l],
-            };
-            if let Some(w) = &self.warp_x {
-                pr.x = w.apply(pr.x);
-            }
-            if let Some(w) = &self.warp_y {
-                pr.y = w.apply(pr.y);
-            }
-            *o = Some(pr);
+            }));
         }
         out
     }

@@ -23,6 +23,20 @@ fn full_sphere(w: usize, h: usize) -> Projection {
     )
 }
 
+/// A 640×480 pinhole camera turned 0.3 rad about y, with pixel matrix `a`.
+fn camera_640x480(a: Mat2) -> Projection {
+    Projection::new(
+        Model::Perspective {
+            rot: Mat3::from_rotation_y(0.3),
+            a,
+            c: Vec2::new(320.0, 240.0),
+        },
+        640,
+        480,
+        false,
+    )
+}
+
 fn round_trip(p: &Projection, x: f32, y: f32, depth: f32, tol: f32) {
     let q = p.unproject(x, y, depth);
     let pr = p.project(q).expect("projects");
@@ -232,16 +246,10 @@ fn footprints_hold_every_projection_of_their_ball() {
             .collect(),
     );
     warped.wrap_x = false;
-    let camera = Projection::new(
-        Model::Perspective {
-            rot: Mat3::from_rotation_y(0.3),
-            a: Mat2::from_cols(Vec2::new(300.0, 20.0), Vec2::new(-10.0, 310.0)),
-            c: Vec2::new(320.0, 240.0),
-        },
-        640,
-        480,
-        false,
-    );
+    let camera = camera_640x480(Mat2::from_cols(
+        Vec2::new(300.0, 20.0),
+        Vec2::new(-10.0, 310.0),
+    ));
     let ortho = Projection::new(
         Model::Ortho {
             a: Vec3::new(100.0, 10.0, 0.0),
@@ -360,16 +368,10 @@ fn four_points_project_as_one_at_a_time() {
     let mut warped = full_sphere(50, 40);
     warped.warp_x = Warp::new(knots.clone());
     warped.warp_y = Warp::new(knots[..40].to_vec());
-    let camera = Projection::new(
-        Model::Perspective {
-            rot: Mat3::from_rotation_y(0.3),
-            a: Mat2::from_cols(Vec2::new(500.0, 3.0), Vec2::new(-2.0, 480.0)),
-            c: Vec2::new(320.0, 240.0),
-        },
-        640,
-        480,
-        false,
-    );
+    let camera = camera_640x480(Mat2::from_cols(
+        Vec2::new(500.0, 3.0),
+        Vec2::new(-2.0, 480.0),
+    ));
     // Axes, signed zeros, the poles, behind the sensor, non-finite and huge coordinates.
     let special = [
         Vec3::ZERO,

@@ -37,7 +37,7 @@ const ROUNDING_PER_EXTENT: f64 = 1e-5;
 /// A set of hashed cell keys. Keys are already mixed, so the hasher passes them through.
 type KeySet = HashSet<u64, BuildHasherDefault<KeyHasher>>;
 
-/// Cells, sorted.
+/// A list of cells.
 type CellList = Vec<[i64; 3]>;
 
 #[derive(Default)]
