@@ -23,6 +23,7 @@ use crate::pipeline::{
     depth_range, merge_params, prepare_view, robust_diagonal, same_file, world_bounds, Config,
     Observer, Pairs, PreparedView,
 };
+use crate::products::manifest::{self, FileTime, Stat};
 use crate::products::{self, InputRecord, Manifest, MergeMaps};
 use crate::report::ScanReport;
 use crate::scan::occupancy::Occupancy;
@@ -127,6 +128,35 @@ fn view_bytes(pixels: u64, points: u64) -> u64 {
     // position 12, normal 12, depth 4, radius 4, point 4, ssao 4, border 4 per pixel; radii,
     // pixel, depth per point.
     pixels * 44 + points * 12
+}
+
+/// How many files of a held prefix (`held`: bytes of each file's scans) the prepare pass can
+/// keep. At the start of file `f` it holds the kept scans of files `≥ f` and the views it
+/// keeps of files `< f` (`views`, bytes per file); that sum plus `margin` must stay within
+/// `budget` at every step.
+fn files_to_hold(held: &[u64], views: &[u64], margin: u64, budget: u64) -> usize {
+    let fits = |k: usize| {
+        let (mut rest, mut kept) = (held[..k].iter().sum::<u64>(), 0u64);
+        for (f, v) in views.iter().enumerate() {
+            if rest + kept + margin > budget {
+                return false;
+            }
+            rest -= held.get(f).filter(|_| f < k).copied().unwrap_or(0);
+            kept += v;
+        }
+        kept + margin <= budget
+    };
+    (0..=held.len().min(views.len()))
+        .rev()
+        .find(|&k| fits(k))
+        .unwrap_or(0)
+}
+
+/// Heap bytes of a parsed scan.
+fn scan_bytes(s: &Scan) -> u64 {
+    let per_point =
+        12 + 4 + if s.normals.is_some() { 12 } else { 0 } + if s.grid.is_some() { 8 } else { 0 };
+    (s.points.capacity() * per_point) as u64
 }
 
 /// Peak resident memory of this process so far (bytes), where the system tells.
@@ -499,9 +529,19 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut samples: Vec<Scan> = Vec::new();
     let mut occ: Vec<Occupancy> = Vec::new();
     let mut max_file_bytes = 0u64;
+    // Scans of the first files are kept for the prepare pass, which then need not read them
+    // again, while they fit in the budget beside what the pass needs; each with the identity
+    // of its file before it was read.
+    let mut held: HashMap<usize, (Stat, Vec<Scan>)> = HashMap::new();
+    let (mut held_bytes, mut holding) = (0u64, !cfg.dry_run);
     for fi in 0..placer.len() {
-        let pf = placer.open(fi)?;
-        warnings.extend(pf.warnings);
+        // A file modified within the clock's resolution could change again unseen: read anew.
+        let before = holding
+            .then(|| manifest::stat(&cfg.scans[fi]).ok())
+            .flatten()
+            .filter(|st| !st.is_racy(FileTime::now()));
+        let mut pf = placer.open(fi)?;
+        warnings.append(&mut pf.warnings);
         max_file_bytes =
             max_file_bytes.max(std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
         for (k, s) in pf.scans.iter().enumerate() {
@@ -537,6 +577,21 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 key: products::key_from_name(&s.name),
                 pose: s.pose,
             });
+        }
+        let wanted = cfg.only.is_empty() || pf.scans.iter().any(|s| cfg.only.contains(&s.name));
+        holding &= before.is_some() && wanted;
+        if let Some(st) = before.filter(|_| holding) {
+            let bytes: u64 = pf.scans.iter().map(scan_bytes).sum();
+            let largest = cat
+                .iter()
+                .map(|c| view_bytes(c.map_pixels, c.points as u64))
+                .max();
+            let floor = max_file_bytes * 5 + 3 * largest.unwrap_or(0) + (16 << 20);
+            holding = held_bytes + bytes + 2 * floor <= budget;
+            if holding {
+                held_bytes += bytes;
+                held.insert(fi, (st, pf.scans));
+            }
         }
         obs.advance(1);
     }
@@ -709,6 +764,19 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     // When every view fits with room to spare, the merge takes the views from here instead of
     // reading back their products (the same values).
     let keep = roomy && !cfg.prepare_only;
+    // The pass frees a file's held scans once it has taken them while the views it keeps pile
+    // up: keep the held files (a prefix) for which the sum stays in the budget at every step.
+    let file_views: Vec<u64> = (0..placer.len())
+        .map(|fi| {
+            let kept = |i: &usize| keep && cat[*i].file == fi && need[*i];
+            (0..n).filter(kept).map(|i| vb[i]).sum()
+        })
+        .collect();
+    let held_of: Vec<u64> = (0..held.len())
+        .map(|fi| held[&fi].1.iter().map(scan_bytes).sum())
+        .collect();
+    let hold = files_to_hold(&held_of, &file_views, 2 * floor, budget);
+    held.retain(|&fi, _| fi < hold);
     let mut fresh: HashMap<usize, (MergeMaps, u64)> = HashMap::new();
     let mut hand_over = |i: usize, v: PreparedView| {
         if keep {
@@ -720,6 +788,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     std::thread::scope(|sc| -> Result<()> {
         let mut pending: Option<Pending<'_>> = None;
         for fi in 0..placer.len() {
+            let kept = held.remove(&fi);
             let stale: Vec<usize> = (0..n)
                 .filter(|&i| cat[i].file == fi && need[i])
                 .filter(|&i| {
@@ -741,15 +810,24 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             }
             // Fingerprint the input before reading it, so a change during the run is caught.
             let rec = InputRecord::capture(&cfg.scans[fi])?;
-            let pf = placer.open(fi)?;
+            let changed = || {
+                Error::Param(format!(
+                    "{}: changed while mvao was running; run again",
+                    cfg.scans[fi].display()
+                ))
+            };
+            // Scans kept from the catalog were read after their file had the identity the
+            // record now finds; others are read again and compared with what the catalog read.
+            let (scans, read_again) = match kept {
+                Some((st, _)) if st != rec.stat() => return Err(changed()),
+                Some((_, scans)) => (scans, false),
+                None => (placer.open(fi)?.scans, true),
+            };
             prep_bytes += rec.size;
             for &i in &stale {
-                let s = &pf.scans[cat[i].index];
-                if data_hash(s) != cat[i].data_hash {
-                    return Err(Error::Param(format!(
-                        "{}: changed while mvao was running; run again",
-                        cfg.scans[fi].display()
-                    )));
+                let s = &scans[cat[i].index];
+                if read_again && data_hash(s) != cat[i].data_hash {
+                    return Err(changed());
                 }
                 let v = prepare_view(s, prm.projection, &sp)?;
                 let (dmin, dmax) = depth_range(&v.depth);
@@ -1110,4 +1188,24 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     out.times.push(("write".into(), write_s));
     out.bytes_read.push(("merge".into(), merge_read));
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn held_scans_are_kept_while_they_and_the_views_fit() {
+        // Scans of 30 each, views of 50: 3 held files start at 90 and end at 150 kept views.
+        assert_eq!(files_to_hold(&[30, 30, 30], &[50, 50, 50], 10, 160), 3);
+        // The views alone reach 150: with a margin of 20 nothing fits.
+        assert_eq!(files_to_hold(&[30, 30, 30], &[50, 50, 50], 20, 165), 0);
+        // Views not kept: only the held scans count, as many as fit at the start.
+        assert_eq!(files_to_hold(&[30, 30, 30], &[0, 0, 0], 10, 75), 2);
+        // Large scans, small views: the start decides.
+        assert_eq!(files_to_hold(&[100, 100, 10], &[5, 5, 5], 0, 150), 1);
+        // Views that grow faster than the held scans shrink: the middle decides.
+        assert_eq!(files_to_hold(&[10, 10, 10], &[100, 100, 0], 0, 205), 2);
+        assert_eq!(files_to_hold(&[], &[5, 5], 0, 150), 0);
+    }
 }

@@ -127,6 +127,15 @@ impl InputRecord {
             hashed_at,
         })
     }
+
+    /// The size, modification time and inode the record holds.
+    pub fn stat(&self) -> Stat {
+        Stat {
+            size: self.size,
+            mtime: self.mtime,
+            ino: self.ino,
+        }
+    }
 }
 
 /// One product file of a key.
@@ -606,15 +615,24 @@ pub fn hash_file(path: &Path) -> Result<(u64, String)> {
     Ok((size, hex128(h.digest128())))
 }
 
-/// What [`Check::Quick`] compares.
+/// What [`Check::Quick`] compares: size, modification time and inode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Stat {
+pub struct Stat {
     size: u64,
     mtime: FileTime,
     ino: Option<u64>,
 }
 
-fn stat(path: &Path) -> Result<Stat> {
+impl Stat {
+    /// Whether the file was modified less than [`RACY_MARGIN_S`] before `now`: a change made
+    /// within the same clock tick would then leave its stat as it is.
+    pub fn is_racy(&self, now: FileTime) -> bool {
+        self.mtime.secs.saturating_add(RACY_MARGIN_S) >= now.secs
+    }
+}
+
+/// The size, modification time and inode of the regular file `path`.
+pub fn stat(path: &Path) -> Result<Stat> {
     let m = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if !m.is_file() {
         return Err(Error::format(path, "not a regular file"));
