@@ -532,8 +532,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     // Scans of the first files are kept for the prepare pass, which then need not read them
     // again, while they fit in the budget beside what the pass needs; each with the identity
     // of its file before it was read.
-    let mut held: HashMap<usize, (Stat, Vec<Scan>)> = HashMap::new();
-    let (mut held_bytes, mut holding) = (0u64, !cfg.dry_run);
+    let mut held: HashMap<usize, (Stat, Vec<Scan>, u64)> = HashMap::new();
+    let mut holding = !cfg.dry_run;
     for fi in 0..placer.len() {
         // A file modified within the clock's resolution could change again unseen: read anew.
         let before = holding
@@ -587,10 +587,10 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 .map(|c| view_bytes(c.map_pixels, c.points as u64))
                 .max();
             let floor = max_file_bytes * 5 + 3 * largest.unwrap_or(0) + (16 << 20);
+            let held_bytes: u64 = held.values().map(|h| h.2).sum();
             holding = held_bytes + bytes + 2 * floor <= budget;
             if holding {
-                held_bytes += bytes;
-                held.insert(fi, (st, pf.scans));
+                held.insert(fi, (st, pf.scans, bytes));
             }
         }
         obs.advance(1);
@@ -772,9 +772,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             (0..n).filter(kept).map(|i| vb[i]).sum()
         })
         .collect();
-    let held_of: Vec<u64> = (0..held.len())
-        .map(|fi| held[&fi].1.iter().map(scan_bytes).sum())
-        .collect();
+    let held_of: Vec<u64> = (0..held.len()).map(|fi| held[&fi].2).collect();
     let hold = files_to_hold(&held_of, &file_views, 2 * floor, budget);
     held.retain(|&fi, _| fi < hold);
     let mut fresh: HashMap<usize, (MergeMaps, u64)> = HashMap::new();
@@ -819,8 +817,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             // Scans kept from the catalog were read after their file had the identity the
             // record now finds; others are read again and compared with what the catalog read.
             let (scans, read_again) = match kept {
-                Some((st, _)) if st != rec.stat() => return Err(changed()),
-                Some((_, scans)) => (scans, false),
+                Some((st, ..)) if st != rec.stat() => return Err(changed()),
+                Some((_, scans, _)) => (scans, false),
                 None => (placer.open(fi)?.scans, true),
             };
             prep_bytes += rec.size;
