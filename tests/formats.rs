@@ -426,3 +426,89 @@ fn corrupt_files_of_every_format_are_named_and_nothing_is_written() {
     assert!(err.contains("noposes.e57") && err.contains("pose"), "{err}");
     let _ = DQuat::IDENTITY;
 }
+
+/// A 40 × 40 height field 1 m below the scanner, with `extra` vertex columns, as a PLY.
+fn field_ply(path: &std::path::Path, extra: &[(&str, mvao::io::ply::ScalarType, &[f64])]) {
+    use mvao::io::ply::{PlyFile, ScalarType};
+    let n = 40usize;
+    let (mut x, mut y, mut z) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..n {
+        for j in 0..n {
+            let (u, v) = (i as f64 * 0.01 - 0.2, j as f64 * 0.01 - 0.2);
+            x.push(u);
+            y.push(v);
+            z.push(-1.0 + 0.05 * (-(u * u + v * v) / 0.005).exp());
+        }
+    }
+    let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![
+        ("x", ScalarType::F32, &x),
+        ("y", ScalarType::F32, &y),
+        ("z", ScalarType::F32, &z),
+    ];
+    cols.extend_from_slice(extra);
+    PlyFile::from_vertex_columns(&cols, &[])
+        .unwrap()
+        .write_path(path)
+        .unwrap();
+}
+
+/// PLY colours on a 0–1 float scale or in 16 bits, and a 16-bit intensity, reach LAS and E57
+/// outputs on their scale (`--color keep`): not black, not white.
+#[test]
+fn ply_colours_and_intensity_on_their_own_scale_reach_las_and_e57() {
+    use mvao::io::ply::ScalarType;
+    let d = tempfile::tempdir().unwrap();
+    let n = 1600;
+    let unit = (vec![0.8; n], vec![0.2; n], vec![0.1; n]);
+    let wide = (vec![50000.0; n], vec![65535.0; n], vec![257.0; n]);
+    let inten = vec![32768.0; n];
+    let cases = [
+        ("unit", ScalarType::F32, &unit, [204u8, 51, 26]),
+        ("wide", ScalarType::U16, &wide, [195, 255, 1]),
+    ];
+    for (name, t, (r, g, b), want) in cases {
+        let ply = d.path().join(format!("{name}.ply"));
+        field_ply(
+            &ply,
+            &[
+                ("red", t, r),
+                ("green", t, g),
+                ("blue", t, b),
+                ("intensity", ScalarType::U16, &inten),
+            ],
+        );
+        for fmt in ["las", "e57"] {
+            let o = d.path().join(format!("{name}_{fmt}"));
+            mvao_ok(&[
+                "merge",
+                "-q",
+                "--no-preview",
+                "--color",
+                "keep",
+                "--format",
+                fmt,
+                "-o",
+                o.to_str().unwrap(),
+                ply.to_str().unwrap(),
+            ]);
+            let out = o.join(format!("{name}.mvao.{fmt}"));
+            if fmt == "las" {
+                let pd = las::Reader::from_path(&out).unwrap().read_all().unwrap();
+                assert_eq!(pd.len(), n);
+                let w = want.map(|c| c as u16 * 257);
+                assert!(pd.rgb().unwrap().all(|c| c == (w[0], w[1], w[2])), "{name}");
+                assert!(pd.intensity().all(|i| i == 32768), "{name}");
+            } else {
+                let e = read_e57(&out).unwrap();
+                let s = &e.scans[0];
+                assert!(s.rgb.as_ref().unwrap().iter().all(|c| *c == want), "{name}");
+                let i = s.intensity.as_ref().unwrap();
+                assert!(
+                    i.iter().all(|v| (v - 0.5).abs() < 1e-4),
+                    "{name}: {:?}",
+                    i[0]
+                );
+            }
+        }
+    }
+}

@@ -4,6 +4,7 @@
 use super::atomic::write_atomic;
 use super::ply::{PlyFile, PropertyKind, ScalarType};
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 use serde::Serialize;
 use std::path::Path;
 
@@ -36,6 +37,31 @@ pub fn grey(ao: f32, gamma: f32) -> u8 {
 #[inline]
 pub fn round_u8(x: f32) -> u8 {
     crate::io::ply::round(f64::from(x)).clamp(0.0, 255.0) as u8
+}
+
+/// How a PLY's vertex `red`/`green`/`blue` are stored, as the stored value of one 8-bit
+/// step: 1/255 for float colours on a 0–1 scale (all three float, no value above 1), 257 for
+/// 16-bit colours (some value above 255: 65535 is 255), else 1 (8-bit values, whatever the
+/// type). `None` unless all three are scalar properties.
+pub fn colour_step(ply: &PlyFile) -> Option<f64> {
+    let float = ["red", "green", "blue"].iter().all(|c| {
+        matches!(
+            ply.property_kind("vertex", c),
+            Some(PropertyKind::Scalar(ScalarType::F32 | ScalarType::F64))
+        )
+    });
+    // One flag byte per vertex, not three f64 columns: the files can be large.
+    let flags = ply.map_scalars("vertex", ["red", "green", "blue"], |c| {
+        u8::from(c.iter().any(|&v| v > 1.0)) | u8::from(c.iter().any(|&v| v > 255.0)) << 1
+    })?;
+    let all = flags.par_iter().copied().reduce(|| 0, |a, b| a | b);
+    Some(if float && all & 1 == 0 {
+        1.0 / 255.0
+    } else if all & 2 != 0 {
+        257.0
+    } else {
+        1.0
+    })
 }
 
 /// Writes `ply` with per-vertex `ao` (one value per vertex, all finite) and colours to `path`.
@@ -74,14 +100,13 @@ pub fn write_result_ply(
     let channels = ["red", "green", "blue"];
     let present = channels.iter().filter(|c| kind(c).is_some()).count();
     let has_rgb = present == 3;
-    // Float colours in [0, 1] get greys on that scale.
-    let unit = has_rgb
-        && channels.iter().all(|c| float(kind(c)))
-        && channels.iter().all(|c| {
-            ply.scalar_column("vertex", c)
-                .is_some_and(|v| v.iter().all(|x| !(*x > 1.0)))
-        });
-    let scale = if unit { 1.0 / 255.0 } else { 1.0 };
+    // Greys on the colours' own scale (0–1 floats, 8 or 16 bits): existing columns keep
+    // their type.
+    let scale = if has_rgb {
+        colour_step(ply).unwrap_or(1.0)
+    } else {
+        1.0
+    };
     let greys: Vec<f64> = ao.iter().map(|&a| grey(a, gamma) as f64 * scale).collect();
     let mut modulated: Vec<Vec<f64>> = Vec::new();
     if has_rgb && color == ColorMode::Modulate {
@@ -264,6 +289,20 @@ mod tests {
         let o = run(&cols(unit), ColorMode::Modulate, "unit_mod.ply");
         let r = o.scalar_column("vertex", "red").unwrap();
         assert!((r[0] - 0.8 * 128.0 / 255.0).abs() < 1e-6 && (r[1] - 0.4).abs() < 1e-6);
+        // 16-bit colours get 16-bit greys; modulating keeps their scale.
+        let wide: &[(&str, ScalarType, &[f64])] = &[
+            ("red", ScalarType::U16, &[60000.0, 300.0]),
+            ("green", ScalarType::U16, &[0.0, 0.0]),
+            ("blue", ScalarType::U16, &[0.0, 0.0]),
+        ];
+        let o = run(&cols(wide), ColorMode::Replace, "wide_replace.ply");
+        assert_eq!(
+            o.scalar_column("vertex", "green").unwrap(),
+            vec![128.0 * 257.0, 65535.0]
+        );
+        let o = run(&cols(wide), ColorMode::Modulate, "wide_mod.ply");
+        let r = o.scalar_column("vertex", "red").unwrap();
+        assert_eq!(r, vec![(60000.0f64 * 128.0 / 255.0).round(), 300.0]);
         let o = run(
             &cols(&[("red", ScalarType::U8, &[9.0, 9.0])]),
             ColorMode::Replace,

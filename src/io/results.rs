@@ -4,12 +4,13 @@
 //! the result is a [`PointTable`] in world coordinates with colour, intensity, AO and grid.
 
 use super::dataset::Dataset;
-use super::output::{grey, write_result_ply, ColorMode};
-use super::ply::{PlyFile, ScalarType};
+use super::output::{colour_step, grey, write_result_ply, ColorMode};
+use super::ply::{round, PlyFile, PropertyKind, ScalarType};
 use super::raw::{PointTable, RawGrid};
 use super::source::{Container, Format};
 use crate::error::{Error, Result};
 use glam::DVec3;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// One output file and the scans it holds.
@@ -330,25 +331,16 @@ type Attributes = (
     Vec<(String, Vec<f64>)>,
 );
 
-/// A PLY's vertex colour, intensity and other scalar properties (per vertex).
+/// A PLY's vertex colour (8 bits, from the colours' own scale: [`colour_step`]), intensity
+/// (in [0, 1]: [`ply_intensity`]) and other scalar properties (per vertex).
 fn ply_attributes(ply: &PlyFile) -> Attributes {
-    let rgb = match (
-        ply.scalar_column("vertex", "red"),
-        ply.scalar_column("vertex", "green"),
-        ply.scalar_column("vertex", "blue"),
-    ) {
-        (Some(r), Some(g), Some(b)) => Some(
-            r.iter()
-                .zip(&g)
-                .zip(&b)
-                .map(|((r, g), b)| [*r, *g, *b].map(|v| v.clamp(0.0, 255.0) as u8))
-                .collect(),
-        ),
-        _ => None,
-    };
-    let intensity = ply
-        .scalar_column("vertex", "intensity")
-        .map(|c| c.iter().map(|&v| v as f32).collect());
+    let rgb = colour_step(ply).and_then(|step| {
+        // NaN becomes 0 in the cast.
+        ply.map_scalars("vertex", ["red", "green", "blue"], |c| {
+            c.map(|v| round(v / step).clamp(0.0, 255.0) as u8)
+        })
+    });
+    let intensity = ply_intensity(ply);
     const SKIP: [&str; 14] = [
         "x",
         "y",
@@ -377,6 +369,57 @@ fn ply_attributes(ply: &PlyFile) -> Attributes {
         }
     }
     (rgb, intensity, extra)
+}
+
+/// A PLY's vertex `intensity` in [0, 1], as [`PointTable::intensity`] holds it: `uchar` by
+/// 255 and `ushort` by 65535; other integers by 255 or 65535 when their values fit, floats
+/// as they are when within [0, 1]; anything else by its own minimum and maximum (as E57
+/// intensities without limits). Values outside the range are clamped; NaN becomes 0.
+fn ply_intensity(ply: &PlyFile) -> Option<Vec<f32>> {
+    let Some(PropertyKind::Scalar(t)) = ply.property_kind("vertex", "intensity") else {
+        return None;
+    };
+    let v = ply.scalar_column("vertex", "intensity")?;
+    let (lo, hi) = match t {
+        ScalarType::U8 => (0.0, 255.0),
+        ScalarType::U16 => (0.0, 65535.0),
+        _ => {
+            let (mn, mx) = v
+                .par_iter()
+                .filter(|x| x.is_finite())
+                .fold(
+                    || (f64::INFINITY, f64::NEG_INFINITY),
+                    |m, &x| (m.0.min(x), m.1.max(x)),
+                )
+                .reduce(
+                    || (f64::INFINITY, f64::NEG_INFINITY),
+                    |a, b| (a.0.min(b.0), a.1.max(b.1)),
+                );
+            let int = !matches!(t, ScalarType::F32 | ScalarType::F64);
+            if mn >= 0.0 && mx <= 1.0 || !(mx > mn) {
+                (0.0, 1.0)
+            } else if int && mn >= 0.0 && mx <= 255.0 {
+                (0.0, 255.0)
+            } else if int && mn >= 0.0 && mx <= 65535.0 {
+                (0.0, 65535.0)
+            } else {
+                (mn, mx)
+            }
+        }
+    };
+    let inv = 1.0 / (hi - lo);
+    Some(
+        v.par_iter()
+            .map(|&x| {
+                let u = ((x - lo) * inv).clamp(0.0, 1.0);
+                if u.is_nan() {
+                    0.0
+                } else {
+                    u as f32
+                }
+            })
+            .collect(),
+    )
 }
 
 /// Writes a table as a binary little-endian PLY: double x y z (world), uchar colour, float
@@ -436,4 +479,79 @@ pub fn write_table_ply(t: &PointTable, comment: &str, path: &Path) -> Result<()>
         .collect();
     let ply = PlyFile::from_vertex_columns(&refs, &[comment.to_string()])?;
     ply.write_path(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn vertices(extra: &[(&str, ScalarType, &[f64])]) -> PlyFile {
+        let xs = vec![0.0; extra.first().map_or(0, |c| c.2.len())];
+        let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![
+            ("x", ScalarType::F32, &xs),
+            ("y", ScalarType::F32, &xs),
+            ("z", ScalarType::F32, &xs),
+        ];
+        cols.extend_from_slice(extra);
+        PlyFile::from_vertex_columns(&cols, &[]).unwrap()
+    }
+
+    fn rgb_of(t: ScalarType, r: &[f64], g: &[f64], b: &[f64]) -> Vec<[u8; 3]> {
+        let p = vertices(&[("red", t, r), ("green", t, g), ("blue", t, b)]);
+        ply_attributes(&p).0.unwrap()
+    }
+
+    /// Colours reach 8 bits from their own scale: floats in [0, 1] by 255, 16-bit values
+    /// (any above 255) by 257, 8-bit values as they are; NaN is black.
+    #[test]
+    fn ply_colours_on_every_scale() {
+        let f = ScalarType::F32;
+        assert_eq!(
+            rgb_of(f, &[0.8, 1.0, f64::NAN], &[0.2, 0.0, 0.5], &[0.1, 0.5, 1.0]),
+            [[204, 51, 26], [255, 0, 128], [0, 128, 255]]
+        );
+        // Float colours beyond 1 are on the 0–255 scale.
+        assert_eq!(
+            rgb_of(f, &[200.4, 1.0], &[2.0, 0.0], &[0.5, 255.0]),
+            [[200, 2, 1], [1, 0, 255]]
+        );
+        let u = ScalarType::U16;
+        assert_eq!(
+            rgb_of(u, &[65535.0, 50000.0], &[0.0, 257.0], &[32768.0, 128.0]),
+            [[255, 0, 128], [195, 1, 0]]
+        );
+        // 8-bit values in a 16-bit type stay as they are; so do uchar colours.
+        assert_eq!(rgb_of(u, &[200.0], &[50.0], &[10.0]), [[200, 50, 10]]);
+        let i = ScalarType::I32;
+        assert_eq!(rgb_of(i, &[65535.0], &[-5.0], &[70000.0]), [[255, 0, 255]]);
+        let c = ScalarType::U8;
+        assert_eq!(
+            rgb_of(c, &[200.0, 1.0], &[50.0, 0.0], &[10.0, 1.0]),
+            [[200, 50, 10], [1, 0, 1]]
+        );
+        // Only some channels: no colour.
+        let p = vertices(&[("red", c, &[1.0]), ("green", c, &[1.0])]);
+        assert!(ply_attributes(&p).0.is_none());
+    }
+
+    /// Intensities reach [0, 1] from their own scale, NaN as 0.
+    #[test]
+    fn ply_intensity_on_every_scale() {
+        let of =
+            |t: ScalarType, v: &[f64]| ply_attributes(&vertices(&[("intensity", t, v)])).1.unwrap();
+        assert_eq!(of(ScalarType::U8, &[0.0, 51.0, 255.0]), [0.0, 0.2, 1.0]);
+        assert_eq!(
+            of(ScalarType::U16, &[0.0, 13107.0, 65535.0]),
+            [0.0, 0.2, 1.0]
+        );
+        assert_eq!(of(ScalarType::U16, &[0.0, 255.0]), [0.0, 255.0 / 65535.0]);
+        assert_eq!(of(ScalarType::I32, &[0.0, 51.0, 255.0]), [0.0, 0.2, 1.0]);
+        assert_eq!(of(ScalarType::I32, &[0.0, 65535.0]), [0.0, 1.0]);
+        assert_eq!(
+            of(ScalarType::F32, &[0.25, f64::NAN, 1.0]),
+            [0.25, 0.0, 1.0]
+        );
+        // A float range of its own (a reflectance in dB, say) spans [0, 1].
+        assert_eq!(of(ScalarType::F32, &[-20.0, -10.0, 0.0]), [0.0, 0.5, 1.0]);
+    }
 }
