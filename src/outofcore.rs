@@ -290,8 +290,8 @@ fn commit(p: Pending<'_>, manifest: &mut Manifest, work_dir: &Path) -> Result<Pr
     Ok(view)
 }
 
-/// Waits for a writer thread and passes on its result.
-fn join_writer(h: std::thread::ScopedJoinHandle<'_, Result<()>>) -> Result<()> {
+/// Waits for a writer thread and passes on its result (its warnings).
+fn join_writer(h: std::thread::ScopedJoinHandle<'_, Result<Vec<String>>>) -> Result<Vec<String>> {
     h.join()
         .map_err(|_| Error::Param("writing the outputs failed (internal error)".into()))?
 }
@@ -994,7 +994,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         order.extend((0..n).filter(|&i| cat[i].file == fi && selected(&cat[i])));
     }
     std::thread::scope(|sc| -> Result<()> {
-        let mut writing: Option<std::thread::ScopedJoinHandle<'_, Result<()>>> = None;
+        let mut writing: Option<std::thread::ScopedJoinHandle<'_, Result<Vec<String>>>> = None;
         // The next scan's per-point products, read while this one merges.
         let mut ahead: Option<(
             usize,
@@ -1155,25 +1155,26 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             }
             // The previous file's outputs are complete before this file's are started.
             if let Some(h) = writing.take() {
-                join_writer(h)?;
+                out.warnings.extend(join_writer(h)?);
             }
             let comment = comment.clone();
-            let write_all = move || -> Result<()> {
+            let write_all = move || -> Result<Vec<String>> {
+                let mut warnings = Vec::new();
                 for u in &todo {
-                    results::write(u, &ds, &aos, wopts, &comment)?;
+                    warnings.extend(results::write(u, &ds, &aos, wopts, &comment)?);
                 }
-                Ok(())
+                Ok(warnings)
             };
             if overlap {
                 writing = Some(sc.spawn(write_all));
             } else {
-                write_all()?;
+                out.warnings.extend(write_all()?);
             }
             write_s += tw.elapsed().as_secs_f64();
         }
         if let Some(h) = writing.take() {
             let tw = Instant::now();
-            join_writer(h)?;
+            out.warnings.extend(join_writer(h)?);
             write_s += tw.elapsed().as_secs_f64();
         }
         Ok(())

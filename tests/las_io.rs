@@ -1090,6 +1090,79 @@ fn table_far_from_origin_stays_exact() {
     }
 }
 
+/// A 2 µm object keeps its points apart: the grid step follows the data's extent (1 nm here),
+/// where a fixed 0.1 mm grid put them all on one position.
+#[test]
+fn table_of_a_tiny_object_keeps_its_points_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let at = DVec3::new(3.7, -12.2, 0.4);
+    let xyz: Vec<[f64; 3]> = (0..1000)
+        .map(|k| {
+            let (i, j, l) = ((k % 10) as f64, ((k / 10) % 10) as f64, (k / 100) as f64);
+            (at + DVec3::new(i, j, l) * 2e-7).to_array()
+        })
+        .collect();
+    let table = PointTable {
+        name: "tiny".into(),
+        xyz: xyz.clone(),
+        pose: DMat4::IDENTITY,
+        ao: vec![0.5; xyz.len()],
+        ..Default::default()
+    };
+    let out = dir.path().join("tiny.las");
+    let warnings = write_table_las(&table, &out, false).unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let mut r = Reader::from_path(&out).unwrap();
+    assert_eq!(r.header().transforms().x.scale, 1e-9);
+    let pd = r.read_all().unwrap();
+    let back: Vec<[f64; 3]> = pd
+        .x()
+        .zip(pd.y())
+        .zip(pd.z())
+        .map(|((x, y), z)| [x, y, z])
+        .collect();
+    let mut keys: Vec<[i64; 3]> = back
+        .iter()
+        .map(|p| p.map(|c| (c * 1e9).round() as i64))
+        .collect();
+    keys.sort_unstable();
+    keys.dedup();
+    assert_eq!(keys.len(), xyz.len(), "distinct points stay distinct");
+    for (p, q) in xyz.iter().zip(&back) {
+        assert!(
+            (0..3).all(|a| (p[a] - q[a]).abs() <= 1e-9),
+            "{p:?} vs {q:?}"
+        );
+    }
+}
+
+/// Points a scene's grid cannot tell apart are written, with a warning that counts them.
+#[test]
+fn table_points_merged_by_the_grid_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut xyz: Vec<[f64; 3]> = (0..100).map(|k| [k as f64, 0.0, 1.0]).collect();
+    // Two points 10 µm from others in a 100 m scene (0.1 mm grid), and an exact duplicate,
+    // which the input did not keep apart either.
+    xyz.push([5.0 + 1e-5, 0.0, 1.0]);
+    xyz.push([7.0, 1e-5, 1.0]);
+    xyz.push([9.0, 0.0, 1.0]);
+    let table = PointTable {
+        name: "scene".into(),
+        ao: vec![0.5; xyz.len()],
+        xyz,
+        pose: DMat4::IDENTITY,
+        ..Default::default()
+    };
+    let out = dir.path().join("scene.las");
+    let warnings = write_table_las(&table, &out, false).unwrap();
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].contains("scene.las") && warnings[0].contains("2 of 103 points"),
+        "{warnings:?}"
+    );
+    assert_eq!(read_las(&out).unwrap().len(), 103);
+}
+
 /// `scripts/check_las_ao.py` reads the output with laspy (and PDAL when installed).
 #[test]
 fn python_readers_see_ao() {

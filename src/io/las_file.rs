@@ -1240,12 +1240,12 @@ fn patch_header(
 }
 
 /// Writes a [`PointTable`] (from another input format) as LAS 1.4, or LAZ with `compress`:
-/// world coordinates (the table's pose applied) at 0.1 mm on an offset near the data, RGB when
-/// the table has it (format 7, else 6), intensity scaled to 16 bits, the `ao` float dimension
-/// and each `extra` field as a double dimension (names cut to 32 bytes, made unique).
-/// Records with non-finite coordinates (no return) have no place in LAS and are left out.
-/// Atomic.
-pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result<()> {
+/// world coordinates (the table's pose applied) on a grid chosen by [`grid_exponent`] with an
+/// offset near the data, RGB when the table has it (format 7, else 6), intensity scaled to 16
+/// bits, the `ao` float dimension and each `extra` field as a double dimension (names cut to
+/// 32 bytes, made unique). Records with non-finite coordinates (no return) have no place in
+/// LAS and are left out. Atomic. Returns warnings: points the grid merges.
+pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result<Vec<String>> {
     let n = table.len();
     check_ao(&table.ao, n, out)?;
     check_compress(compress, out)?;
@@ -1279,6 +1279,8 @@ pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result
             hi[a] = hi[a].max(world[k][a]);
         }
     }
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    let exp = grid_exponent(extent);
     let axis = |a: usize| {
         if keep.is_empty() {
             return Transform {
@@ -1288,18 +1290,33 @@ pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result
         }
         let offset = ((lo[a] + hi[a]) * 0.5).round();
         let half = (hi[a] - offset).max(offset - lo[a]);
-        // 0.1 mm unless the extent would overflow the 32-bit integers.
-        let mut scale = 1e-4;
-        while half / scale > 2.0e9 {
-            scale *= 10.0;
+        // Coarser where the extent would overflow the 32-bit integers.
+        let mut e = exp;
+        while half / pow10(e) > 2.0e9 && e < 300 {
+            e += 1;
         }
-        Transform { scale, offset }
+        Transform {
+            scale: pow10(e),
+            offset,
+        }
     };
     let transforms = Vector {
         x: axis(0),
         y: axis(1),
         z: axis(2),
     };
+    let grid = [transforms.x, transforms.y, transforms.z];
+    let mut warnings = Vec::new();
+    let merged = merged_points(&world, &keep, &grid);
+    if merged > 0 {
+        let step = grid.iter().map(|t| t.scale).fold(0.0, f64::max);
+        warnings.push(format!(
+            "{}: {merged} of {} points fall on the LAS grid position ({step:e} m steps) of a \
+             different point and can no longer be told apart",
+            out.display(),
+            keep.len()
+        ));
+    }
 
     // Extra dimensions: ao, then each extra field as f64 with a unique name.
     let mut names: Vec<String> = vec![AO_NAME.to_string()];
@@ -1351,10 +1368,7 @@ pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result
             .zip(&keep[first..first + m])
             .for_each(|(o, &k)| {
                 o.fill(0);
-                let w = world[k];
-                let t = [transforms.x, transforms.y, transforms.z];
-                for a in 0..3 {
-                    let q = ((w[a] - t[a].offset) / t[a].scale).round() as i32;
+                for (a, q) in quantise(world[k], &grid).into_iter().enumerate() {
                     o[4 * a..4 * a + 4].copy_from_slice(&q.to_le_bytes());
                 }
                 if let Some(i) = &table.intensity {
@@ -1381,12 +1395,95 @@ pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result
         bits: 0,
         evlr: None,
     };
-    write_points(out, header, keep.len(), fill, waveform)
+    write_points(out, header, keep.len(), fill, waveform)?;
+    Ok(warnings)
+}
+
+/// The coarsest grid step of table output, 0.1 mm (10^-4 m): scans of scenes a metre or more
+/// across are stored at it.
+const GRID_EXP_COARSEST: i32 = -4;
+/// The finest grid step, 1 nm: an offset on a whole metre leaves every coordinate within
+/// ±2 m of it, still inside the 32-bit integers at this step.
+const GRID_EXP_FINEST: i32 = -9;
+/// Grid steps across the data's largest extent below which the step is made finer.
+const GRID_MIN_STEPS: f64 = 1e4;
+
+/// The power of ten of the LAS grid step for data of `extent` (metres, largest over the
+/// axes): the point spacing is unknown, so the step is at most 1/10⁴ of the extent (the
+/// relative precision of any scanner), 0.1 mm at the most, 1 nm at the least. A 10 cm object
+/// gets 10 µm; a room or a city 0.1 mm.
+pub fn grid_exponent(extent: f64) -> i32 {
+    let mut e = GRID_EXP_COARSEST;
+    while e > GRID_EXP_FINEST && extent < GRID_MIN_STEPS * pow10(e) {
+        e -= 1;
+    }
+    e
+}
+
+/// `10^e`, correctly rounded (`1e-4` exactly as the literal).
+fn pow10(e: i32) -> f64 {
+    // 10^k is exact for the exponents used; one division rounds correctly.
+    if e < 0 {
+        1.0 / 10f64.powi(-e)
+    } else {
+        10f64.powi(e)
+    }
+}
+
+/// A world position as the 32-bit integers of `grid` (saturating; the grid is chosen so that
+/// every kept point fits).
+fn quantise(w: [f64; 3], grid: &[Transform; 3]) -> [i32; 3] {
+    [0, 1, 2].map(|a| ((w[a] - grid[a].offset) / grid[a].scale).round() as i32)
+}
+
+/// How many of the points `keep` of `world` the grid puts on the position of a different
+/// point (distinct points of a group sharing a position count all but one).
+fn merged_points(world: &[[f64; 3]], keep: &[usize], grid: &[Transform; 3]) -> usize {
+    // A u32 index keeps the sort at 16 bytes a point; no table of one scan comes near 2^32.
+    let Ok(mut q) = keep
+        .par_iter()
+        .map(|&k| u32::try_from(k).map(|i| (quantise(world[k], grid), i)))
+        .collect::<std::result::Result<Vec<_>, _>>()
+    else {
+        return 0;
+    };
+    q.par_sort_unstable();
+    let mut merged = 0;
+    for g in q.chunk_by(|a, b| a.0 == b.0).filter(|g| g.len() > 1) {
+        let mut pts: Vec<[u64; 3]> = g
+            .iter()
+            .map(|&(_, i)| world[i as usize].map(|c| (c + 0.0).to_bits()))
+            .collect();
+        pts.sort_unstable();
+        pts.dedup();
+        merged += pts.len() - 1;
+    }
+    merged
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn grid_step_follows_the_extent() {
+        assert_eq!(pow10(-4), 1e-4);
+        assert_eq!(pow10(-9), 1e-9);
+        assert_eq!(pow10(2), 100.0);
+        for (extent, e) in [
+            (1e5, -4),
+            (1.0, -4),
+            (0.99, -5),
+            (0.15, -5),
+            (0.05, -6),
+            (2e-6, -9),
+            (0.0, -9),
+            (f64::INFINITY, -4),
+            (f64::NAN, -4),
+        ] {
+            assert_eq!(grid_exponent(extent), e, "{extent}");
+        }
+    }
 
     #[test]
     fn extra_dims_layout() {

@@ -123,14 +123,15 @@ pub fn plan_files(
 }
 
 /// Writes one output. `ao[i]` holds scan `i`'s AO per valid point (the order of
-/// [`Scan::points`](crate::scan::Scan::points)); every value must be finite.
+/// [`Scan::points`](crate::scan::Scan::points)); every value must be finite. Returns what
+/// the user should know about the output (points the LAS grid merges).
 pub fn write(
     unit: &OutputUnit,
     ds: &Dataset,
     ao: &[Vec<f32>],
     opts: WriteOptions,
     comment: &str,
-) -> Result<()> {
+) -> Result<Vec<String>> {
     for &i in &unit.scans {
         if ao[i].iter().any(|a| !a.is_finite()) {
             return Err(Error::Param(format!(
@@ -141,7 +142,7 @@ pub fn write(
     }
     let file = &ds.files[unit.file];
     if unit.same_family {
-        match &file.container {
+        let written = match &file.container {
             Container::Ply(ply) => {
                 let i = unit.scans[0];
                 let s = &ds.scans[i];
@@ -197,7 +198,8 @@ pub fn write(
                     unit.format == Format::Laz,
                 )
             }
-        }
+        };
+        written.map(|()| Vec::new())
     } else {
         let tables: Vec<PointTable> = unit
             .scans
@@ -205,8 +207,10 @@ pub fn write(
             .map(|&i| table_of(ds, i, &ao[i], opts))
             .collect::<Result<_>>()?;
         match unit.format {
-            Format::Ply => write_table_ply(&tables[0], comment, &unit.path),
-            Format::E57 => super::e57_file::write_table_e57(&tables, &unit.path),
+            Format::Ply => write_table_ply(&tables[0], comment, &unit.path).map(|()| Vec::new()),
+            Format::E57 => {
+                super::e57_file::write_table_e57(&tables, &unit.path).map(|()| Vec::new())
+            }
             Format::Las | Format::Laz => {
                 super::las_file::write_table_las(&tables[0], &unit.path, unit.format == Format::Laz)
             }
