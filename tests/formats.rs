@@ -512,3 +512,34 @@ fn ply_colours_and_intensity_on_their_own_scale_reach_las_and_e57() {
         }
     }
 }
+
+/// A binary PLY with bytes after its data is read with a warning to the user; an ascii PLY
+/// whose row runs on past its properties is an error naming the file and the line.
+#[test]
+fn ply_trailing_bytes_warn_and_ascii_rows_are_checked() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("padded.ply");
+    field_ply(&ply, &[]);
+    let mut bytes = std::fs::read(&ply).unwrap();
+    bytes.extend_from_slice(&[0; 7]);
+    std::fs::write(&ply, &bytes).unwrap();
+    let out = mvao_ok(&["info", ply.to_str().unwrap()]);
+    assert!(
+        out.contains("padded.ply: 7 bytes after the last element ignored"),
+        "{out}"
+    );
+    let bad = d.path().join("bad.ply");
+    std::fs::write(
+        &bad,
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
+         property float z\nend_header\n0 0 0 9 9\n1 1 1\n",
+    )
+    .unwrap();
+    let r = mvao(&["info", bad.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success());
+    assert!(
+        err.contains("bad.ply: line 8: vertex 0 has 5 values, expected 3"),
+        "{err}"
+    );
+}

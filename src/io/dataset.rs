@@ -199,7 +199,7 @@ impl Placer {
         let mut scans = Vec::new();
         let mut file_to_world = Vec::new();
         let mut pose_source = Vec::new();
-        let mut warnings = Vec::new();
+        let mut warnings = std::mem::take(&mut f.warnings);
         let own: Vec<Scan> = std::mem::take(&mut f.scans);
         let single = own.len() == 1;
         for (k, mut s) in own.into_iter().enumerate() {

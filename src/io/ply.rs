@@ -110,8 +110,15 @@ pub struct PlyFile {
 impl PlyFile {
     /// Reads a PLY file (ascii, binary little or big endian). Errors name `path` and say what is
     /// wrong: not a PLY, bad header line, unknown type, truncated body (with element and row),
-    /// unparsable ascii value, trailing garbage is ignored.
+    /// unparsable ascii value, an ascii row with too few or too many values (with its line).
+    /// Data after the last element is ignored ([`PlyFile::read_path_warn`] reports it).
     pub fn read_path(path: &Path) -> Result<PlyFile> {
+        Self::read_path_warn(path).map(|(ply, _)| ply)
+    }
+
+    /// [`PlyFile::read_path`], with what the user should know about the file: data after the
+    /// last element (some writers pad their files, so it is not an error).
+    pub fn read_path_warn(path: &Path) -> Result<(PlyFile, Vec<String>)> {
         let file = File::open(path).map_err(|e| Error::io(path, e))?;
         let len = file
             .metadata()
@@ -127,6 +134,7 @@ impl PlyFile {
         let mut src = Source {
             r: BufReader::with_capacity(cap, file),
             pos: 0,
+            line: 1,
             len,
             path,
         };
@@ -135,7 +143,11 @@ impl PlyFile {
         for def in &header.elements {
             data.push(read_element(&mut src, header.encoding, def)?);
         }
-        Ok(PlyFile { header, data })
+        let mut warnings = Vec::new();
+        if let Some(w) = trailing_data(&mut src, header.encoding)? {
+            warnings.push(w);
+        }
+        Ok((PlyFile { header, data }, warnings))
     }
 
     /// Index of the element named `name`.
@@ -967,6 +979,8 @@ struct Source<'p> {
     r: BufReader<File>,
     /// Bytes consumed from the start of the file.
     pos: u64,
+    /// Line of the next byte (1-based); kept up to date by header and ascii reading only.
+    line: u64,
     /// File length, when the file is a regular file.
     len: Option<u64>,
     /// For error messages.
@@ -1001,6 +1015,9 @@ impl Source<'_> {
             .take(MAX_HEADER_LINE)
             .read_until(b'\n', line)?;
         self.pos += n as u64;
+        if line.last() == Some(&b'\n') {
+            self.line += 1;
+        }
         Ok(n)
     }
 
@@ -1131,7 +1148,8 @@ impl Source<'_> {
     }
 
     /// Next whitespace-separated token into `tok`: `None` at end of file, `Some(false)` if the
-    /// token was longer than [`MAX_TOKEN`] (then `tok` holds its start).
+    /// token was longer than [`MAX_TOKEN`] (then `tok` holds its start). Line ends skipped on
+    /// the way are counted in [`Source::line`].
     fn next_token(&mut self, tok: &mut Vec<u8>) -> std::io::Result<Option<bool>> {
         tok.clear();
         // Skip whitespace.
@@ -1144,6 +1162,7 @@ impl Source<'_> {
                 Some(i) => (i, true),
                 None => (buf.len(), false),
             };
+            self.line += buf[..skip].iter().filter(|&&b| b == b'\n').count() as u64;
             self.r.consume(skip);
             self.pos += skip as u64;
             if found {
@@ -1173,6 +1192,39 @@ impl Source<'_> {
             }
         }
         Ok(Some(complete))
+    }
+
+    /// Consumes the rest of the current line, its line end included, and returns the number of
+    /// tokens it held.
+    fn rest_of_line(&mut self) -> std::io::Result<usize> {
+        let mut tokens = 0;
+        let mut in_token = false;
+        loop {
+            let buf = self.r.fill_buf()?;
+            if buf.is_empty() {
+                return Ok(tokens);
+            }
+            let mut used = buf.len();
+            let mut ended = false;
+            for (i, &b) in buf.iter().enumerate() {
+                if b == b'\n' {
+                    used = i + 1;
+                    ended = true;
+                    break;
+                }
+                let space = b.is_ascii_whitespace();
+                if !space && !in_token {
+                    tokens += 1;
+                }
+                in_token = !space;
+            }
+            self.r.consume(used);
+            self.pos += used as u64;
+            if ended {
+                self.line += 1;
+                return Ok(tokens);
+            }
+        }
     }
 }
 
@@ -1559,7 +1611,8 @@ fn show(tok: &[u8]) -> String {
     }
 }
 
-/// An ascii element, token by token, with one reused token buffer.
+/// An ascii element, token by token, with one reused token buffer. Each row is one line: a
+/// line with too few or too many values for the element's properties is an error naming it.
 fn read_ascii(src: &mut Source, def: &ElementDef) -> Result<ElementData> {
     let stride = fixed_stride(&def.props);
     let has_lists = stride.is_none();
@@ -1575,14 +1628,30 @@ fn read_ascii(src: &mut Source, def: &ElementDef) -> Result<ElementData> {
     } else {
         None
     };
+    let lists = def
+        .props
+        .iter()
+        .filter(|p| matches!(p.kind, PropertyKind::List { .. }))
+        .count();
     let mut tok = Vec::with_capacity(64);
     for row in 0..def.count {
-        for p in &def.props {
+        // Blank lines before a row are skipped; the row's first value fixes its line.
+        next_ascii(src, &mut tok, def, row)?;
+        let mut shape = RowShape {
+            line: src.line,
+            got: 0,
+            want: def.props.len(),
+            open_lists: lists,
+        };
+        for (pi, p) in def.props.iter().enumerate() {
             let (value_type, is_list) = match p.kind {
                 PropertyKind::Scalar(t) => (t, None),
                 PropertyKind::List { count, item } => (count, Some(item)),
             };
-            next_ascii(src, &mut tok, def, row)?;
+            if pi > 0 {
+                shape.next(src, &mut tok, def, row)?;
+            }
+            shape.got += 1;
             let Some(item) = is_list else {
                 let v = parse_ascii(&tok, value_type)
                     .map_err(|e| ascii_error(src, &tok, e, value_type, def, row, &p.name))?;
@@ -1607,13 +1676,21 @@ fn read_ascii(src: &mut Source, def: &ElementDef) -> Result<ElementData> {
                     value_type.name()
                 )));
             }
+            shape.open_lists -= 1;
+            shape.want = shape.want.saturating_add(n as usize);
             bytes.extend_from_slice(value_type.encode(n as f64).as_slice());
             for _ in 0..n {
-                next_ascii(src, &mut tok, def, row)?;
+                shape.next(src, &mut tok, def, row)?;
+                shape.got += 1;
                 let v = parse_ascii(&tok, item)
                     .map_err(|e| ascii_error(src, &tok, e, item, def, row, &p.name))?;
                 bytes.extend_from_slice(v.as_slice());
             }
+        }
+        let extra = src.rest_of_line().map_err(|e| src.io_err(e))?;
+        if extra > 0 {
+            shape.got += extra;
+            return Err(shape.error(src, def, row));
         }
         if let Some(o) = offs.as_mut() {
             o.push(bytes.len());
@@ -1625,17 +1702,88 @@ fn read_ascii(src: &mut Source, def: &ElementDef) -> Result<ElementData> {
     })
 }
 
+/// The values of one ascii row read so far, against those its properties call for.
+struct RowShape {
+    /// The row's line.
+    line: u64,
+    /// Values read.
+    got: usize,
+    /// Values called for: one per scalar and list count, plus the items of the lists read.
+    want: usize,
+    /// Lists whose count is not read yet (each may call for more values).
+    open_lists: usize,
+}
+
+impl RowShape {
+    /// The next value of the row, which must be on the row's line.
+    fn next(
+        &self,
+        src: &mut Source,
+        tok: &mut Vec<u8>,
+        def: &ElementDef,
+        row: usize,
+    ) -> Result<()> {
+        next_ascii(src, tok, def, row)?;
+        if src.line != self.line {
+            return Err(self.error(src, def, row));
+        }
+        Ok(())
+    }
+
+    /// The error of a row with the wrong number of values.
+    fn error(&self, src: &Source, def: &ElementDef, row: usize) -> Error {
+        let at_least = if self.open_lists > 0 { "at least " } else { "" };
+        src.err(format!(
+            "line {}: {} {row} has {} values, expected {at_least}{}",
+            self.line, def.name, self.got, self.want
+        ))
+    }
+}
+
 /// The next ascii token of element `def`, row `row`, or the matching error.
 fn next_ascii(src: &mut Source, tok: &mut Vec<u8>, def: &ElementDef, row: usize) -> Result<()> {
     match src.next_token(tok).map_err(|e| src.io_err(e))? {
         None => Err(truncated(src, def, row)),
         Some(false) => Err(src.err(format!(
-            "ascii value '{}' in element '{}' row {row} is longer than {MAX_TOKEN} characters",
+            "line {}: ascii value '{}' in element '{}' row {row} is longer than {MAX_TOKEN} \
+             characters",
+            src.line,
             show(tok),
             def.name
         ))),
         Some(true) => Ok(()),
     }
+}
+
+/// A warning for data after the last element: any byte of a binary file, anything but
+/// whitespace in an ascii one.
+fn trailing_data(src: &mut Source, enc: Encoding) -> Result<Option<String>> {
+    let what = src.path.display().to_string();
+    let path = src.path;
+    if enc == Encoding::Ascii {
+        loop {
+            let buf = src.r.fill_buf().map_err(|e| Error::io(path, e))?;
+            let n = buf.len();
+            if n == 0 {
+                return Ok(None);
+            }
+            let nl = |b: &[u8]| b.iter().filter(|&&c| c == b'\n').count() as u64;
+            if let Some(i) = buf.iter().position(|b| !b.is_ascii_whitespace()) {
+                let line = src.line + nl(&buf[..i]);
+                return Ok(Some(format!(
+                    "{what}: line {line}: data after the last element ignored"
+                )));
+            }
+            src.line += nl(buf);
+            src.r.consume(n);
+            src.pos += n as u64;
+        }
+    }
+    let extra = match src.remaining() {
+        Some(r) => r,
+        None => std::io::copy(&mut src.r, &mut std::io::sink()).map_err(|e| src.io_err(e))?,
+    };
+    Ok((extra > 0).then(|| format!("{what}: {extra} bytes after the last element ignored")))
 }
 
 fn ascii_error(
@@ -1653,7 +1801,8 @@ fn ascii_error(
         AsciiProblem::OutOfRange => format!("is out of range for type {}", t.name()),
     };
     src.err(format!(
-        "ascii value '{}' in element '{}' row {row} {what} (property '{prop}')",
+        "line {}: ascii value '{}' in element '{}' row {row} {what} (property '{prop}')",
+        src.line,
         show(tok),
         def.name
     ))
@@ -1703,6 +1852,15 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = write_tmp(&dir, "t.ply", bytes);
         PlyFile::read_path(&p)
+    }
+
+    fn read_warn(bytes: &[u8]) -> (PlyFile, Vec<String>) {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write_tmp(&dir, "t.ply", bytes);
+        match PlyFile::read_path_warn(&p) {
+            Ok(r) => r,
+            Err(e) => panic!("read failed: {e}"),
+        }
     }
 
     fn read_ok(bytes: &[u8]) -> PlyFile {
@@ -2364,13 +2522,13 @@ mod tests {
                    property float y\nend_header\n1 2\n3 4\n1 2\n3 4\n5 6\n7 abc\n";
         assert_eq!(
             format_err(src.as_bytes()),
-            "ascii value 'abc' in element 'vertex' row 5 is not a number (property 'y')"
+            "line 12: ascii value 'abc' in element 'vertex' row 5 is not a number (property 'y')"
         );
         let src = "ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar r\nend_header\n300\n";
         assert_eq!(
             format_err(src.as_bytes()),
-            "ascii value '300' in element 'vertex' row 0 is out of range for type uchar \
-             (property 'r')"
+            "line 6: ascii value '300' in element 'vertex' row 0 is out of range for type \
+             uchar (property 'r')"
         );
         let src = "ply\nformat ascii 1.0\nelement vertex 1\nproperty int r\nend_header\n1.5\n";
         assert!(format_err(src.as_bytes()).contains("is not an integer"));
@@ -2380,21 +2538,97 @@ mod tests {
         );
         assert!(format_err(src.as_bytes()).contains("is longer than"));
         // Whole numbers written as floats are accepted for integer types, as are nan/inf for
-        // floats; trailing garbage after the last element is ignored.
+        // floats; trailing garbage after the last element is ignored, with a warning.
         let src = "ply\nformat ascii 1.0\nelement vertex 2\nproperty int r\nproperty double d\n\
-                   end_header\n2.0 nan\n+3 -inf\ntrailing garbage\n";
-        let p = read_ok(src.as_bytes());
+                   end_header\n2.0 nan\n+3 -inf\n\n trailing garbage\n";
+        let (p, w) = read_warn(src.as_bytes());
+        assert_eq!(w.len(), 1);
+        assert!(
+            w[0].ends_with("t.ply: line 10: data after the last element ignored"),
+            "{w:?}"
+        );
         assert_eq!(p.scalar_column("vertex", "r").unwrap(), vec![2.0, 3.0]);
         let d = p.scalar_column("vertex", "d").unwrap();
         assert!(d[0].is_nan() && d[1] == f64::NEG_INFINITY);
     }
 
     #[test]
-    fn trailing_garbage_after_binary_is_ignored() {
+    fn trailing_garbage_after_binary_is_ignored_with_a_warning() {
         let head = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty short a\n\
                     end_header\n";
-        let p = read_ok(&ply(head, &[1, 2, 3, 4, 5]));
+        let (p, w) = read_warn(&ply(head, &[1, 2, 3, 4, 5]));
         assert_eq!(p.scalar_column("vertex", "a").unwrap(), vec![513.0]);
+        assert_eq!(w.len(), 1);
+        assert!(
+            w[0].ends_with("t.ply: 3 bytes after the last element ignored"),
+            "{w:?}"
+        );
+        // Exactly the declared data: nothing to say.
+        assert!(read_warn(&ply(head, &[1, 2])).1.is_empty());
+        // Blank lines after an ascii body are no data.
+        let src =
+            "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n\n \r\n";
+        assert!(read_warn(src.as_bytes()).1.is_empty());
+    }
+
+    /// Each ascii row is one line: a row short of values, or one with values to spare, is an
+    /// error naming the line, not read on into the next line.
+    #[test]
+    fn ascii_rows_are_lines() {
+        let head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                    property float z\nend_header\n";
+        let src = format!("{head}0 0 0 9 9\n1 1 1\n2 2 2\n");
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "line 8: vertex 0 has 5 values, expected 3"
+        );
+        let src = format!("{head}0 0 0\n1 1\n2 2 2\n");
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "line 9: vertex 1 has 2 values, expected 3"
+        );
+        let src = format!("{head}0 0 0\n1 1 1\n2 2 2 3\n");
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "line 10: vertex 2 has 4 values, expected 3"
+        );
+        // The message names the file.
+        let dir = tempfile::tempdir().unwrap();
+        let p = write_tmp(&dir, "bad.ply", src.as_bytes());
+        let msg = PlyFile::read_path(&p).unwrap_err().to_string();
+        assert!(msg.contains("bad.ply") && msg.contains("line 10"), "{msg}");
+        // Lists: the count says how many items the line holds.
+        let lhead = "ply\nformat ascii 1.0\nelement face 2\nproperty list uchar int v\n\
+                     property uchar f\nend_header\n";
+        let src = format!("{lhead}3 0 1 2 7\n2 5 6 7 8\n");
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "line 8: face 1 has 5 values, expected 4"
+        );
+        let src = format!("{lhead}3 0 1\n2 7\n");
+        assert_eq!(
+            format_err(src.as_bytes()),
+            "line 7: face 0 has 3 values, expected 5"
+        );
+        let src = format!("{lhead}\n");
+        assert!(format_err(src.as_bytes()).starts_with("truncated: element 'face'"));
+        let two = "ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int v\n\
+                   property list uchar int w\nend_header\n1 4\n";
+        assert_eq!(
+            format_err(format!("{two}1 5\n").as_bytes()),
+            "line 7: face 0 has 2 values, expected at least 3"
+        );
+        // CRLF line ends, blank lines between rows and trailing blank lines are fine.
+        let src = "ply\r\nformat ascii 1.0\r\nelement vertex 2\r\nproperty float x\r\n\
+                   property float y\r\nelement face 1\r\nproperty list uchar int v\r\n\
+                   end_header\r\n1 2\r\n\r\n3 4\r\n2 0 1\r\n\r\n\r\n";
+        let (p, w) = read_warn(src.as_bytes());
+        assert!(w.is_empty(), "{w:?}");
+        assert_eq!(p.scalar_column("vertex", "y").unwrap(), vec![2.0, 4.0]);
+        assert_eq!(p.list_column("face", "v").unwrap(), vec![vec![0, 1]]);
+        // The last row may end without a line end.
+        let src = format!("{head}0 0 0\n1 1 1\n2 2 2");
+        assert_eq!(read_ok(src.as_bytes()).vertex_xyz().unwrap()[2], [2.0; 3]);
     }
 
     #[test]

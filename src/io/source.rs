@@ -176,6 +176,8 @@ pub struct InputFile {
     /// Per scan: file coordinates → scan-local coordinates before any alignment (the offset
     /// subtracted and the scanner moved to the origin). The pipeline composes it with poses.
     pub file_to_local: Vec<DVec3>,
+    /// What the reader found worth telling the user (data ignored), each naming the file.
+    pub warnings: Vec<String>,
 }
 
 /// Reads any supported scan file.
@@ -187,7 +189,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
         .unwrap_or_else(|| path.display().to_string());
     match format {
         Format::Ply => {
-            let ply = PlyFile::read_path(path)?;
+            let (ply, warnings) = PlyFile::read_path_warn(path)?;
             let raw = super::scan_ply::raw_from_ply(&ply, path, &stem)?;
             let (scan, off) = scan_from_raw(raw, path)?;
             Ok(InputFile {
@@ -196,6 +198,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
                 container: Container::Ply(Box::new(ply)),
                 scans: vec![scan],
                 file_to_local: vec![off],
+                warnings,
             })
         }
         Format::Las | Format::Laz => {
@@ -207,6 +210,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
                 container: Container::Las(Box::new(l)),
                 scans: vec![scan],
                 file_to_local: vec![off],
+                warnings: Vec::new(),
             })
         }
         Format::E57 => {
@@ -218,6 +222,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
                 container: Container::E57(Box::new(e)),
                 scans,
                 file_to_local: offs,
+                warnings: Vec::new(),
             })
         }
         Format::Ptx => {
@@ -229,6 +234,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
                 container: Container::Ptx(Box::new(p)),
                 scans,
                 file_to_local: offs,
+                warnings: Vec::new(),
             })
         }
     }
