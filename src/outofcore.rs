@@ -17,6 +17,7 @@ use crate::gbuffer::EMPTY;
 use crate::io::dataset::{Dataset, Placer};
 use crate::io::output::write_preview;
 use crate::io::results::{self, WriteOptions};
+use crate::io::source::Container;
 use crate::merge::cull::PointCells;
 use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
 use crate::pipeline::{
@@ -542,6 +543,17 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             .filter(|st| !st.is_racy(FileTime::now()));
         let mut pf = placer.open(fi)?;
         warnings.append(&mut pf.warnings);
+        if let Container::Ply(ply) = &pf.file.container {
+            let bad = crate::io::output::nonfinite_properties(ply);
+            if !bad.is_empty() {
+                let list: Vec<String> = bad.iter().map(|(p, n)| format!("{p} ({n})")).collect();
+                warnings.push(format!(
+                    "{}: non-finite values in vertex properties {}; written as 0 in the output",
+                    cfg.scans[fi].display(),
+                    list.join(", ")
+                ));
+            }
+        }
         max_file_bytes =
             max_file_bytes.max(std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
         for (k, s) in pf.scans.iter().enumerate() {
@@ -670,13 +682,37 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut kept = 0usize;
     let mut point_views = 0u64;
     for (i, c) in cat.iter().enumerate() {
+        let mut partners = 0usize;
         for j in 0..n {
             if i == j || pair_meets(i, j, 0.0) {
                 if i != j {
-                    kept += 1;
+                    partners += 1;
                 }
                 point_views += c.points as u64;
             }
+        }
+        kept += partners;
+        // A scan that meets no other is most often misplaced (a wrong or missing pose); its
+        // points keep their own view's AO, and its extent inflates the default radius.
+        if partners == 0 && n > 1 {
+            let centre =
+                |c: &CatalogScan| (DVec3::from(c.bounds[0]) + DVec3::from(c.bounds[1])) * 0.5;
+            let gap = (0..n)
+                .filter(|&j| j != i)
+                .map(|j| centre(c).distance(centre(&cat[j])))
+                .fold(f64::INFINITY, f64::min);
+            warnings.push(format!(
+                "{}: scan {} shares no surface with any other scan (the nearest one's centre is \
+                 {gap:.1} m away); check its pose or alignment. Its points get their own \
+                 view's AO only{}",
+                cfg.scans[c.file].display(),
+                c.name,
+                if prm.radius.is_none() {
+                    ", and its place counts in the default radius"
+                } else {
+                    ""
+                }
+            ));
         }
     }
     let vb: Vec<u64> = cat

@@ -176,6 +176,16 @@ fn the_plan_skips_pairs_that_cannot_meet() {
     a.extend(scans.iter().map(|p| p.to_str().unwrap()));
     let text = mvao_ok(&a);
     assert!(text.contains("pairs kept 0, skipped 2"), "{text}");
+    // Both stations are named as meeting no other, with the distance between them.
+    for name in ["station_000", "station_001"] {
+        assert!(
+            text.contains(&format!(
+                "scan {name} shares no surface with any other scan"
+            )),
+            "{text}"
+        );
+    }
+    assert!(text.contains("1000.0 m away"), "{text}");
     assert!(!out.join("work").exists(), "a dry run wrote products");
     let r = merge(&scans, &out, &[]);
     assert_eq!(r["plan"]["pairs_skipped"], 2);
