@@ -124,6 +124,12 @@ fn summary_path(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("{key}.summary.json"))
 }
 
+/// A scan's summary, when its file is there and readable (a damaged one counts as missing, so
+/// that the prepare pass writes it again).
+fn read_summary(p: &Path) -> Option<Summary> {
+    serde_json::from_slice(&std::fs::read(p).ok()?).ok()
+}
+
 /// Estimated bytes of a loaded view with `pixels` pixels and `points` points.
 fn view_bytes(pixels: u64, points: u64) -> u64 {
     // position 12, normal 12, depth 4, radius 4, point 4, ssao 4, border 4 per pixel; radii,
@@ -405,8 +411,19 @@ impl MapCache {
     }
 }
 
-/// Refuses to start when an output would overwrite an input, or exists without `--force`.
-fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
+/// The file listing the outputs of a run whose report is not written yet (one per job, like
+/// the report): a run killed while writing its outputs leaves it, and the rerun may replace
+/// those outputs without `--force`.
+pub fn unfinished_marker(cfg: &Config) -> PathBuf {
+    match cfg.only.first() {
+        None => cfg.out_dir.join(".mvao-unfinished"),
+        Some(n) => cfg.out_dir.join(format!(".mvao-unfinished.{n}")),
+    }
+}
+
+/// Refuses to start when an output would overwrite an input, or exists without `--force`
+/// (unless an unfinished run of the same job wrote it). Returns the outputs.
+fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<Vec<PathBuf>> {
     let files: Vec<(PathBuf, crate::io::source::Format, Vec<String>)> = cfg
         .scans
         .iter()
@@ -448,6 +465,14 @@ fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
     if cfg.only.is_empty() {
         outputs.push(cfg.out_dir.join("report.json"));
     }
+    let pending: Vec<String> = std::fs::read_to_string(unfinished_marker(cfg))
+        .map(|t| t.lines().map(str::to_string).collect())
+        .unwrap_or_default();
+    let ours = |o: &Path| {
+        o.file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| pending.iter().any(|p| p == n))
+    };
     for o in &outputs {
         if cfg.scans.iter().any(|s| same_file(s, o)) {
             return Err(Error::Param(format!(
@@ -455,14 +480,14 @@ fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
                 o.display()
             )));
         }
-        if o.exists() && !cfg.force {
+        if o.exists() && !cfg.force && !ours(o) {
             return Err(Error::Param(format!(
                 "{}: exists; use --force to overwrite or choose another -o",
                 o.display()
             )));
         }
     }
-    Ok(())
+    Ok(outputs)
 }
 
 /// Outcome of [`run`].
@@ -639,8 +664,9 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     }
 
     let mut refs = None;
+    let mut planned_outputs = Vec::new();
     if !cfg.dry_run && !cfg.prepare_only {
-        check_outputs(cfg, &cat)?;
+        planned_outputs = check_outputs(cfg, &cat)?;
         // A reference that does not match is refused before any work is done.
         if let Some(d) = &cfg.reference {
             let named: Vec<(String, usize)> = cat
@@ -827,7 +853,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 .filter(|&i| cat[i].file == fi && need[i])
                 .filter(|&i| {
                     !(manifest.is_fresh(&cat[i].key, &[&cfg.scans[fi]], &params(&cat[i]))
-                        && summary_path(&work_dir, &cat[i].key).is_file())
+                        && read_summary(&summary_path(&work_dir, &cat[i].key)).is_some())
                 })
                 .collect();
             out.prepared.1 += (0..n)
@@ -936,16 +962,13 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut sums: Vec<Option<Summary>> = vec![None; n];
     for i in (0..n).filter(|&i| need[i]) {
         let p = summary_path(&work_dir, &cat[i].key);
-        let s: Summary = std::fs::read(&p)
-            .ok()
-            .and_then(|b| serde_json::from_slice(&b).ok())
-            .ok_or_else(|| {
-                Error::Param(format!(
-                    "{}: missing or damaged; run `mvao prepare` for scan '{}' again",
-                    p.display(),
-                    cat[i].name
-                ))
-            })?;
+        let s: Summary = read_summary(&p).ok_or_else(|| {
+            Error::Param(format!(
+                "{}: missing or damaged; run `mvao prepare` for scan '{}' again",
+                p.display(),
+                cat[i].name
+            ))
+        })?;
         sums[i] = Some(s);
     }
     let ranges: Vec<(f32, f32)> = sums
@@ -974,6 +997,13 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
 
     // Pass 3: merge, one input file at a time.
     std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
+    let names: Vec<&str> = planned_outputs
+        .iter()
+        .filter_map(|p| p.file_name().and_then(|n| n.to_str()))
+        .collect();
+    crate::io::atomic::write_atomic(&unfinished_marker(cfg), |w| {
+        std::io::Write::write_all(w, (names.join("\n") + "\n").as_bytes())
+    })?;
     let t0 = Instant::now();
     let total: u64 = (0..n)
         .filter(|&i| selected(&cat[i]))

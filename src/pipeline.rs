@@ -817,6 +817,12 @@ pub fn run(cfg: &Config) -> Result<Report> {
         Some(n) => cfg.out_dir.join(format!("report.{n}.json")),
     };
     crate::io::atomic::write_atomic(&rp, |w| std::io::Write::write_all(w, &json))?;
+    // The run is complete: its outputs are protected again.
+    let marker = crate::outofcore::unfinished_marker(cfg);
+    match std::fs::remove_file(&marker) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(Error::io(&marker, e)),
+        _ => {}
+    }
     Ok(report)
 }
 
