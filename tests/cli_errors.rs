@@ -375,4 +375,22 @@ fn bad_flag_values_are_rejected() {
     let r = mvao(&["merge", &s(&a), "--neighbors", "4"]);
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("1, 3, 5, 7, 9"));
+    fails(
+        &["merge".into(), s(&a), "--dmin=5".into(), "--dmax=1".into()],
+        "--dmin 5 must be below --dmax 1",
+    );
+    let m = d.path().join("a_pose.txt");
+    std::fs::write(&m, "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+    let pose = format!("a={}", s(&m));
+    fails(
+        &[
+            "merge".into(),
+            "--pose".into(),
+            pose.clone(),
+            "--pose".into(),
+            pose,
+            s(&a),
+        ],
+        "--pose a is given twice",
+    );
 }
