@@ -488,6 +488,11 @@ impl MergeArgs {
                 return Err(format!("--dmin must be ≥ 0 metres, got {d}"));
             }
         }
+        if let (Some(a), Some(b)) = (self.dmin, self.dmax) {
+            if a >= b {
+                return Err(format!("--dmin {a} must be below --dmax {b}"));
+            }
+        }
         if !(self.gamma > 0.0 && self.gamma.is_finite()) {
             return Err(format!("--gamma must be positive, got {}", self.gamma));
         }

@@ -17,6 +17,7 @@ use crate::gbuffer::EMPTY;
 use crate::io::dataset::{Dataset, Placer};
 use crate::io::output::write_preview;
 use crate::io::results::{self, WriteOptions};
+use crate::io::source::Container;
 use crate::merge::cull::PointCells;
 use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
 use crate::pipeline::{
@@ -121,6 +122,12 @@ struct Summary {
 
 fn summary_path(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("{key}.summary.json"))
+}
+
+/// A scan's summary, when its file is there and readable (a damaged one counts as missing, so
+/// that the prepare pass writes it again).
+fn read_summary(p: &Path) -> Option<Summary> {
+    serde_json::from_slice(&std::fs::read(p).ok()?).ok()
 }
 
 /// Estimated bytes of a loaded view with `pixels` pixels and `points` points.
@@ -404,8 +411,19 @@ impl MapCache {
     }
 }
 
-/// Refuses to start when an output would overwrite an input, or exists without `--force`.
-fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
+/// The file listing the outputs of a run whose report is not written yet (one per job, like
+/// the report): a run killed while writing its outputs leaves it, and the rerun may replace
+/// those outputs without `--force`.
+pub fn unfinished_marker(cfg: &Config) -> PathBuf {
+    match cfg.only.first() {
+        None => cfg.out_dir.join(".mvao-unfinished"),
+        Some(n) => cfg.out_dir.join(format!(".mvao-unfinished.{n}")),
+    }
+}
+
+/// Refuses to start when an output would overwrite an input, or exists without `--force`
+/// (unless an unfinished run of the same job wrote it). Returns the outputs.
+fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<Vec<PathBuf>> {
     let files: Vec<(PathBuf, crate::io::source::Format, Vec<String>)> = cfg
         .scans
         .iter()
@@ -447,6 +465,14 @@ fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
     if cfg.only.is_empty() {
         outputs.push(cfg.out_dir.join("report.json"));
     }
+    let pending: Vec<String> = std::fs::read_to_string(unfinished_marker(cfg))
+        .map(|t| t.lines().map(str::to_string).collect())
+        .unwrap_or_default();
+    let ours = |o: &Path| {
+        o.file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| pending.iter().any(|p| p == n))
+    };
     for o in &outputs {
         if cfg.scans.iter().any(|s| same_file(s, o)) {
             return Err(Error::Param(format!(
@@ -454,14 +480,14 @@ fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<()> {
                 o.display()
             )));
         }
-        if o.exists() && !cfg.force {
+        if o.exists() && !cfg.force && !ours(o) {
             return Err(Error::Param(format!(
                 "{}: exists; use --force to overwrite or choose another -o",
                 o.display()
             )));
         }
     }
-    Ok(())
+    Ok(outputs)
 }
 
 /// Outcome of [`run`].
@@ -542,6 +568,17 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             .filter(|st| !st.is_racy(FileTime::now()));
         let mut pf = placer.open(fi)?;
         warnings.append(&mut pf.warnings);
+        if let Container::Ply(ply) = &pf.file.container {
+            let bad = crate::io::output::nonfinite_properties(ply);
+            if !bad.is_empty() {
+                let list: Vec<String> = bad.iter().map(|(p, n)| format!("{p} ({n})")).collect();
+                warnings.push(format!(
+                    "{}: non-finite values in vertex properties {}; written as 0 in the output",
+                    cfg.scans[fi].display(),
+                    list.join(", ")
+                ));
+            }
+        }
         max_file_bytes =
             max_file_bytes.max(std::fs::metadata(&cfg.scans[fi]).map_or(0, |m| m.len()));
         for (k, s) in pf.scans.iter().enumerate() {
@@ -627,8 +664,9 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     }
 
     let mut refs = None;
+    let mut planned_outputs = Vec::new();
     if !cfg.dry_run && !cfg.prepare_only {
-        check_outputs(cfg, &cat)?;
+        planned_outputs = check_outputs(cfg, &cat)?;
         // A reference that does not match is refused before any work is done.
         if let Some(d) = &cfg.reference {
             let named: Vec<(String, usize)> = cat
@@ -670,13 +708,37 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut kept = 0usize;
     let mut point_views = 0u64;
     for (i, c) in cat.iter().enumerate() {
+        let mut partners = 0usize;
         for j in 0..n {
             if i == j || pair_meets(i, j, 0.0) {
                 if i != j {
-                    kept += 1;
+                    partners += 1;
                 }
                 point_views += c.points as u64;
             }
+        }
+        kept += partners;
+        // A scan that meets no other is most often misplaced (a wrong or missing pose); its
+        // points keep their own view's AO, and its extent inflates the default radius.
+        if partners == 0 && n > 1 {
+            let centre =
+                |c: &CatalogScan| (DVec3::from(c.bounds[0]) + DVec3::from(c.bounds[1])) * 0.5;
+            let gap = (0..n)
+                .filter(|&j| j != i)
+                .map(|j| centre(c).distance(centre(&cat[j])))
+                .fold(f64::INFINITY, f64::min);
+            warnings.push(format!(
+                "{}: scan {} shares no surface with any other scan (the nearest one's centre is \
+                 {gap:.1} m away); check its pose or alignment. Its points get their own \
+                 view's AO only{}",
+                cfg.scans[c.file].display(),
+                c.name,
+                if prm.radius.is_none() {
+                    ", and its place counts in the default radius"
+                } else {
+                    ""
+                }
+            ));
         }
     }
     let vb: Vec<u64> = cat
@@ -791,7 +853,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 .filter(|&i| cat[i].file == fi && need[i])
                 .filter(|&i| {
                     !(manifest.is_fresh(&cat[i].key, &[&cfg.scans[fi]], &params(&cat[i]))
-                        && summary_path(&work_dir, &cat[i].key).is_file())
+                        && read_summary(&summary_path(&work_dir, &cat[i].key)).is_some())
                 })
                 .collect();
             out.prepared.1 += (0..n)
@@ -900,16 +962,13 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let mut sums: Vec<Option<Summary>> = vec![None; n];
     for i in (0..n).filter(|&i| need[i]) {
         let p = summary_path(&work_dir, &cat[i].key);
-        let s: Summary = std::fs::read(&p)
-            .ok()
-            .and_then(|b| serde_json::from_slice(&b).ok())
-            .ok_or_else(|| {
-                Error::Param(format!(
-                    "{}: missing or damaged; run `mvao prepare` for scan '{}' again",
-                    p.display(),
-                    cat[i].name
-                ))
-            })?;
+        let s: Summary = read_summary(&p).ok_or_else(|| {
+            Error::Param(format!(
+                "{}: missing or damaged; run `mvao prepare` for scan '{}' again",
+                p.display(),
+                cat[i].name
+            ))
+        })?;
         sums[i] = Some(s);
     }
     let ranges: Vec<(f32, f32)> = sums
@@ -938,6 +997,13 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
 
     // Pass 3: merge, one input file at a time.
     std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
+    let names: Vec<&str> = planned_outputs
+        .iter()
+        .filter_map(|p| p.file_name().and_then(|n| n.to_str()))
+        .collect();
+    crate::io::atomic::write_atomic(&unfinished_marker(cfg), |w| {
+        std::io::Write::write_all(w, (names.join("\n") + "\n").as_bytes())
+    })?;
     let t0 = Instant::now();
     let total: u64 = (0..n)
         .filter(|&i| selected(&cat[i]))

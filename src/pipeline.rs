@@ -206,33 +206,53 @@ pub trait Observer: Sync {
 pub struct Silent;
 impl Observer for Silent {}
 
-/// Robust scene diagonal: 1st–99th percentile box of a sample of points, taken in the first
-/// scan's frame so it moves with the dataset (a rigid motion of all poses leaves it unchanged).
+/// Robust scene diagonal: 1st–99th percentile box of a sample of points along the sample's
+/// principal axes. A rigid motion of all poses leaves it unchanged (it was once measured along
+/// the first scan's axes, which made the default radius depend on the order of the files), and
+/// the scans are sampled in name order so that the order of the inputs changes nothing.
 pub fn robust_diagonal(scans: &[Scan]) -> f64 {
-    let mut xs = [Vec::new(), Vec::new(), Vec::new()];
-    let to_first = scans.first().map(|s| s.pose.inverse()).unwrap_or_default();
-    for s in scans {
+    let mut order: Vec<&Scan> = scans.iter().collect();
+    order.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut pts: Vec<DVec3> = Vec::new();
+    for s in order {
         let step = s.len().div_ceil(20_000).max(1);
-        let m = to_first * s.pose;
-        for p in s.points.iter().step_by(step) {
-            let w = m.transform_point3(p.as_dvec3());
-            for k in 0..3 {
-                xs[k].push(w[k]);
+        pts.extend(
+            s.points
+                .iter()
+                .step_by(step)
+                .map(|p| s.pose.transform_point3(p.as_dvec3())),
+        );
+    }
+    if pts.is_empty() {
+        return 0.0;
+    }
+    let n = pts.len() as f64;
+    let mean = pts.iter().fold(DVec3::ZERO, |a, &p| a + p) / n;
+    let mut cov = [[0.0f64; 3]; 3];
+    for p in &pts {
+        let d = (*p - mean).to_array();
+        for (r, row) in cov.iter_mut().enumerate() {
+            for (c, v) in row.iter_mut().enumerate() {
+                *v += d[r] * d[c] / n;
             }
         }
     }
+    let (_, axes) = crate::scan::normals::sym_eigen3(cov);
     let mut ext = DVec3::ZERO;
-    for k in 0..3 {
-        let v = &mut xs[k];
-        if v.is_empty() {
-            return 0.0;
-        }
+    let mut v: Vec<f64> = Vec::with_capacity(pts.len());
+    for (k, axis) in axes.iter().enumerate() {
+        v.clear();
+        v.extend(pts.iter().map(|p| (*p - mean).dot(*axis)));
         v.sort_by(f64::total_cmp);
         let lo = v[(v.len() as f64 * 0.01) as usize];
         let hi = v[((v.len() as f64 * 0.99) as usize).min(v.len() - 1)];
         ext[k] = hi - lo;
     }
-    ext.length()
+    if ext.is_finite() {
+        ext.length()
+    } else {
+        0.0
+    }
 }
 
 /// The SSAO parameters of a run, with a note on how the defaults were derived: radius =
@@ -797,6 +817,12 @@ pub fn run(cfg: &Config) -> Result<Report> {
         Some(n) => cfg.out_dir.join(format!("report.{n}.json")),
     };
     crate::io::atomic::write_atomic(&rp, |w| std::io::Write::write_all(w, &json))?;
+    // The run is complete: its outputs are protected again.
+    let marker = crate::outofcore::unfinished_marker(cfg);
+    match std::fs::remove_file(&marker) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(Error::io(&marker, e)),
+        _ => {}
+    }
     Ok(report)
 }
 
@@ -805,5 +831,59 @@ pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
     match (a.canonicalize(), b.canonicalize()) {
         (Ok(x), Ok(y)) => x == y,
         _ => false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{DMat4, DQuat, Vec3};
+
+    /// Two slabs of points, each in its own frame, placed side by side in the world.
+    fn two_scans() -> Vec<Scan> {
+        let slab = |name: &str, pose: DMat4| {
+            let pts = (0..40_000)
+                .map(|k| {
+                    let (i, j) = ((k % 200) as f32, (k / 200) as f32);
+                    Vec3::new(
+                        i * 0.02,
+                        j * 0.01,
+                        ((i * 0.3).sin() + (j * 0.2).cos()) * 0.1,
+                    )
+                })
+                .collect();
+            let mut s = Scan::from_points(name, pts);
+            s.pose = pose;
+            s
+        };
+        let turn = DMat4::from_rotation_translation(
+            DQuat::from_rotation_z(0.7),
+            DVec3::new(3.0, 1.0, 0.5),
+        );
+        vec![slab("a", DMat4::IDENTITY), slab("b", turn)]
+    }
+
+    #[test]
+    fn the_default_diagonal_does_not_depend_on_the_order_or_a_rigid_motion() {
+        let scans = two_scans();
+        let d = robust_diagonal(&scans);
+        assert!(d > 3.0 && d < 8.0, "diagonal {d}");
+        let swapped: Vec<Scan> = scans.iter().rev().cloned().collect();
+        assert_eq!(robust_diagonal(&swapped).to_bits(), d.to_bits());
+        // A georeferenced placement of the whole site: far offset and a turn.
+        let site = DMat4::from_rotation_translation(
+            DQuat::from_rotation_z(-1.1) * DQuat::from_rotation_x(0.2),
+            DVec3::new(512_345.1, 5_412_345.7, 310.0),
+        );
+        let moved: Vec<Scan> = scans
+            .iter()
+            .map(|s| {
+                let mut m = s.clone();
+                m.pose = site * s.pose;
+                m
+            })
+            .collect();
+        let dm = robust_diagonal(&moved);
+        assert!((dm - d).abs() < 1e-6 * d, "{dm} vs {d}");
     }
 }

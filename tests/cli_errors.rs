@@ -117,6 +117,52 @@ fn non_finite_points_are_skipped_counted_and_never_written() {
     assert_eq!(std::fs::read(&p).unwrap(), before, "input modified");
 }
 
+/// NaN normals and colours of the input are written as 0 with a warning: no NaN reaches an
+/// output, and the AO does not suffer (normals are estimated anew).
+#[test]
+fn non_finite_properties_are_written_as_zero() {
+    let d = tempfile::tempdir().unwrap();
+    let pts = dome(2000);
+    let col = |k: usize| -> Vec<f64> { pts.iter().map(|p| p[k]).collect() };
+    let (x, y, z) = (col(0), col(1), col(2));
+    let nan: Vec<f64> = (0..pts.len())
+        .map(|i| if i % 3 == 0 { f64::NAN } else { 0.5 })
+        .collect();
+    let ply = PlyFile::from_vertex_columns(
+        &[
+            ("x", ScalarType::F32, &x),
+            ("y", ScalarType::F32, &y),
+            ("z", ScalarType::F32, &z),
+            ("nx", ScalarType::F32, &nan),
+            ("red", ScalarType::F32, &nan),
+            ("green", ScalarType::F32, &nan),
+            ("blue", ScalarType::F64, &nan),
+        ],
+        &[],
+    )
+    .unwrap();
+    let p = d.path().join("nan_props.ply");
+    ply.write_path(&p).unwrap();
+    let out = d.path().join("out");
+    let text = mvao_ok(&["merge", "-q", "-o", &s(&out), &s(&p), "--radius", "0.3"]);
+    let n = pts.len().div_ceil(3);
+    assert!(
+        text.contains(&format!(
+            "non-finite values in vertex properties nx ({n}), red ({n}), green ({n}), blue ({n})"
+        )),
+        "{text}"
+    );
+    let o = PlyFile::read_path(&out.join("nan_props.mvao.ply")).unwrap();
+    for prop in ["nx", "red", "green", "blue", "ao"] {
+        let c = o.scalar_column("vertex", prop).unwrap();
+        assert!(
+            c.iter().all(|v| v.is_finite()),
+            "{prop} has a non-finite value"
+        );
+    }
+    assert!(o.scalar_column("vertex", "nx").unwrap()[0] == 0.0);
+}
+
 #[test]
 fn alignment_mismatches_are_errors() {
     let d = tempfile::tempdir().unwrap();
@@ -329,4 +375,22 @@ fn bad_flag_values_are_rejected() {
     let r = mvao(&["merge", &s(&a), "--neighbors", "4"]);
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("1, 3, 5, 7, 9"));
+    fails(
+        &["merge".into(), s(&a), "--dmin=5".into(), "--dmax=1".into()],
+        "--dmin 5 must be below --dmax 1",
+    );
+    let m = d.path().join("a_pose.txt");
+    std::fs::write(&m, "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+    let pose = format!("a={}", s(&m));
+    fails(
+        &[
+            "merge".into(),
+            "--pose".into(),
+            pose.clone(),
+            "--pose".into(),
+            pose,
+            s(&a),
+        ],
+        "--pose a is given twice",
+    );
 }

@@ -176,6 +176,16 @@ fn the_plan_skips_pairs_that_cannot_meet() {
     a.extend(scans.iter().map(|p| p.to_str().unwrap()));
     let text = mvao_ok(&a);
     assert!(text.contains("pairs kept 0, skipped 2"), "{text}");
+    // Both stations are named as meeting no other, with the distance between them.
+    for name in ["station_000", "station_001"] {
+        assert!(
+            text.contains(&format!(
+                "scan {name} shares no surface with any other scan"
+            )),
+            "{text}"
+        );
+    }
+    assert!(text.contains("1000.0 m away"), "{text}");
     assert!(!out.join("work").exists(), "a dry run wrote products");
     let r = merge(&scans, &out, &[]);
     assert_eq!(r["plan"]["pairs_skipped"], 2);
@@ -218,4 +228,62 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
         peak >> 20,
         budget >> 20
     );
+}
+
+/// A damaged summary in the work directory is written again by the next run (it does not
+/// stop every later merge), and the outputs are the same as before.
+#[test]
+fn a_damaged_summary_is_prepared_again() {
+    let d = tempfile::tempdir().unwrap();
+    let scans = synth_room(&d.path().join("site"), 2, 120, 60);
+    let out = d.path().join("out");
+    merge(&scans, &out, &[]);
+    let before = outputs(&out);
+    let sum = out.join("work/station_000.summary.json");
+    assert!(sum.is_file(), "no summary at {}", sum.display());
+    std::fs::write(&sum, "zzz").unwrap();
+    let r = merge(&scans, &out, &[]);
+    assert_eq!(products(&r), (1, 1), "{}", r["products"]);
+    assert_eq!(outputs(&out), before);
+    assert!(serde_json::from_slice::<serde_json::Value>(&std::fs::read(&sum).unwrap()).is_ok());
+}
+
+/// A run killed while writing its outputs leaves them beside a list of what it was writing
+/// and no report: the rerun replaces them without `--force`, and a finished run's outputs
+/// are protected again.
+#[test]
+fn a_run_killed_while_writing_is_rerun_without_force() {
+    let d = tempfile::tempdir().unwrap();
+    let scans = synth_room(&d.path().join("site"), 2, 120, 60);
+    let out = d.path().join("out");
+    merge(&scans, &out, &[]);
+    let before = outputs(&out);
+    let marker = out.join(".mvao-unfinished");
+    assert!(!marker.exists(), "a finished run left its marker");
+    let run = |force: bool| {
+        let mut a = vec!["merge", "-q", "--no-preview", "--radius", "0.2", "-o"];
+        a.push(out.to_str().unwrap());
+        if force {
+            a.push("--force");
+        }
+        a.extend(scans.iter().map(|p| p.to_str().unwrap()));
+        mvao(&a)
+    };
+    assert!(
+        !run(false).status.success(),
+        "finished outputs were replaced without --force"
+    );
+    // The state a kill leaves after the first output: the marker, no report.
+    std::fs::remove_file(out.join("report.json")).unwrap();
+    std::fs::remove_file(out.join("station_001.mvao.ply")).unwrap();
+    std::fs::write(
+        &marker,
+        "station_000.mvao.ply\nstation_001.mvao.ply\nreport.json\n",
+    )
+    .unwrap();
+    let r = run(false);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert_eq!(outputs(&out), before);
+    assert!(out.join("report.json").is_file());
+    assert!(!marker.exists());
 }

@@ -99,6 +99,16 @@ impl Placer {
         for p in paths {
             std::fs::metadata(p).map_err(|e| Error::io(p, e))?;
         }
+        for (i, o) in opts.poses.iter().enumerate() {
+            if let Some(d) = opts.poses[..i].iter().find(|d| d.target == o.target) {
+                return Err(Error::Param(format!(
+                    "--pose {} is given twice ({} and {})",
+                    o.target,
+                    d.file.display(),
+                    o.file.display()
+                )));
+            }
+        }
         let by_file = |p: &Path| opts.poses.iter().any(|o| names_file(&o.target, p));
         for p in paths.iter().filter(|p| !by_file(p)) {
             align::check_one_sidecar(p)?;

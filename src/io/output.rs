@@ -64,7 +64,33 @@ pub fn colour_step(ply: &PlyFile) -> Option<f64> {
     })
 }
 
+/// The float vertex properties holding non-finite values, with how many: the output writes
+/// them as 0, since no NaN may reach an output. `x`, `y`, `z` are left out: rows with
+/// non-finite coordinates are not written at all.
+pub fn nonfinite_properties(ply: &PlyFile) -> Vec<(String, usize)> {
+    let Some(ei) = ply.element("vertex") else {
+        return Vec::new();
+    };
+    ply.header.elements[ei]
+        .props
+        .iter()
+        .filter(|p| {
+            matches!(
+                p.kind,
+                PropertyKind::Scalar(ScalarType::F32 | ScalarType::F64)
+            ) && !["x", "y", "z"].contains(&p.name.as_str())
+        })
+        .filter_map(|p| {
+            let bad = ply.map_scalars("vertex", [p.name.as_str()], |[v]| !v.is_finite())?;
+            let n = bad.iter().filter(|&&b| b).count();
+            (n > 0).then(|| (p.name.clone(), n))
+        })
+        .collect()
+}
+
 /// Writes `ply` with per-vertex `ao` (one value per vertex, all finite) and colours to `path`.
+/// Non-finite values of the input's float properties are written as 0
+/// ([`nonfinite_properties`]).
 pub fn write_result_ply(
     ply: &PlyFile,
     ao: &[f32],
@@ -79,6 +105,25 @@ pub fn write_result_ply(
             path.display()
         )));
     }
+    let cleaned: PlyFile;
+    let bad = nonfinite_properties(ply);
+    let ply = if bad.is_empty() {
+        ply
+    } else {
+        let mut c = ply.clone();
+        for (name, _) in &bad {
+            let v: Vec<f64> = c
+                .scalar_column("vertex", name)
+                .unwrap_or_default()
+                .into_iter()
+                .map(|x| if x.is_finite() { x } else { 0.0 })
+                .collect();
+            // The property exists: it keeps its type (the one given is ignored).
+            c.set_scalar_column("vertex", name, ScalarType::F32, &v)?;
+        }
+        cleaned = c;
+        &cleaned
+    };
     let aof: Vec<f64> = ao.iter().map(|&a| a as f64).collect();
     let kind = |p: &str| ply.property_kind("vertex", p);
     let float = |k: Option<PropertyKind>| {
