@@ -89,10 +89,11 @@ pub fn describe(paths: &[PathBuf], place: &PlaceOptions, choice: ProjectionChoic
             pose: [0, 1, 2, 3].map(|r| m.row(r).to_array()),
             pose_source: ds.pose_source[i].clone(),
             grid: s.grid.as_ref().map(|g| [g.rows, g.cols]),
+            // Distinct cells: points sharing a cell fill it once.
             grid_filled: s.grid.as_ref().map(|g| {
                 let cells = g.rows as f64 * g.cols as f64;
                 if cells > 0.0 {
-                    s.len() as f64 / cells
+                    g.occupied_cells() as f64 / cells
                 } else {
                     0.0
                 }

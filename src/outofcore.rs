@@ -606,9 +606,11 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 index: k,
                 points: s.len(),
                 bounds: [lo.to_array(), hi.to_array()],
+                // A grid far sparser than its points is resampled at about a pixel a point.
                 map_pixels: s
                     .grid
                     .as_ref()
+                    .filter(|_| !crate::sensor::grid_too_sparse(s))
                     .map_or(s.len() as u64, |g| g.rows as u64 * g.cols as u64),
                 data_hash: data_hash(s),
                 key: products::key_from_name(&s.name),

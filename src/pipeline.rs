@@ -360,11 +360,14 @@ pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, 
         .map(|n| n.par_iter().filter(|v| *v == &Vec3::ZERO).count());
     let need = invalid_normals.is_none_or(|k| k > 0);
     let toward = |p| proj.toward_sensor(p);
-    let (est, radii) = match &scan.grid {
-        Some(g) if sensor.grid_pixels.is_some() => {
-            normals::estimate_grid(&scan.points, g, need, toward)
-        }
-        _ => normals::estimate(&scan.points, need, toward),
+    // A point without a cell has no grid neighbours: then the k-d tree serves every point.
+    let grid = scan
+        .grid
+        .as_ref()
+        .filter(|g| sensor.grid_pixels.is_some() && g.uncelled() == 0);
+    let (est, radii) = match grid {
+        Some(g) => normals::estimate_grid(&scan.points, g, need, toward),
+        None => normals::estimate(&scan.points, need, toward),
     };
     let (normals, note) = match (&scan.normals, est) {
         (Some(given), Some(est)) => {
@@ -395,7 +398,7 @@ pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, 
         ),
         (None, Some(est)) => (
             est,
-            if scan.grid.is_some() && sensor.grid_pixels.is_some() {
+            if grid.is_some() {
                 "estimated (PCA, k = 16, neighbours from the native grid)".to_string()
             } else {
                 "estimated (PCA, k = 16)".to_string()

@@ -3,6 +3,7 @@
 //! otherwise built from the point directions at about one pixel per point.
 
 use crate::error::{Error, Result};
+use crate::gbuffer::EMPTY;
 use crate::projection::{Model, Projection, SensorModel, Warp};
 use crate::scan::Scan;
 use glam::{DMat3, DMat4, DVec3, DVec4, Mat2, Vec2, Vec3};
@@ -70,10 +71,7 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
         (ProjectionChoice::Auto, Some(SensorModel::Ortho)) => ProjectionChoice::Ortho,
         (c, _) => c,
     };
-    let sparse = scan.grid.as_ref().is_some_and(|g| {
-        u64::from(g.rows) * u64::from(g.cols)
-            > (MAX_GRID_CELLS_PER_POINT * scan.len() as u64).max(MIN_GRID_CELL_CAP)
-    });
+    let sparse = grid_too_sparse(scan);
     if let Some(grid) = scan.grid.as_ref().filter(|_| !sparse) {
         let mut fits = fit_grid(scan, choice);
         fits.par_iter_mut().for_each(|f| add_warps(f, scan, grid));
@@ -87,19 +85,25 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
                 } else {
                     (grid.cols, grid.rows)
                 };
-                let pixels = grid
-                    .row
-                    .iter()
-                    .zip(&grid.col)
-                    .map(|(&r, &c)| {
-                        let (x, y) = if fit.swap { (r, c) } else { (c, r) };
-                        y * w + x
-                    })
-                    .collect();
                 let mut projection = fit.projection.clone();
                 projection.width = w as usize;
                 projection.height = h as usize;
                 projection.wrap_x = is_full_circle(&projection);
+                // A point without a cell goes where the fitted model puts it.
+                let pixels = (0..scan.len())
+                    .into_par_iter()
+                    .map(|i| {
+                        if !grid.has_cell(i) {
+                            return projection
+                                .project(scan.points[i])
+                                .and_then(|pr| projection.pixel_index(pr.x, pr.y))
+                                .map_or(EMPTY, |v| v as u32);
+                        }
+                        let (r, c) = (grid.row[i], grid.col[i]);
+                        let (x, y) = if fit.swap { (r, c) } else { (c, r) };
+                        y * w + x
+                    })
+                    .collect();
                 let reason = format!(
                     "native {}x{} grid fits the {} model{} within {:.2} px RMS{}",
                     grid.cols,
@@ -156,6 +160,15 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
         projection,
         grid_pixels: None,
         fit_rms_px: None,
+    })
+}
+
+/// True when the scan's native grid has far more cells than points (a header declaring a
+/// grid far larger than its points), so the map is built from the points instead.
+pub fn grid_too_sparse(scan: &Scan) -> bool {
+    scan.grid.as_ref().is_some_and(|g| {
+        u64::from(g.rows) * u64::from(g.cols)
+            > (MAX_GRID_CELLS_PER_POINT * scan.len() as u64).max(MIN_GRID_CELL_CAP)
     })
 }
 
@@ -344,7 +357,9 @@ fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
     let Some(grid) = &scan.grid else {
         return Vec::new();
     };
-    let idx: Vec<usize> = sample_indices(scan.len()).collect();
+    let idx: Vec<usize> = sample_indices(scan.len())
+        .filter(|&i| grid.has_cell(i))
+        .collect();
     if idx.len() < 8 {
         return Vec::new();
     }

@@ -348,8 +348,16 @@ fn check_scan(ply: &PlyFile, path: &Path, decoded: &[Option<Rows>]) {
     if let Some(g) = &scan.grid {
         assert_eq!(g.row.len(), scan.points.len());
         assert_eq!(g.col.len(), scan.points.len());
-        assert!(g.row.iter().all(|&r| r < g.rows), "grid row out of range");
-        assert!(g.col.iter().all(|&c| c < g.cols), "grid col out of range");
+        // A point is in the grid, or marked as without a cell in both indices.
+        let none = mvao::scan::NO_CELL;
+        assert!(
+            g.row
+                .iter()
+                .zip(&g.col)
+                .all(|(&r, &c)| (r < g.rows && c < g.cols) || (r == none && c == none)),
+            "grid cell out of range"
+        );
+        assert!(g.occupied_cells() <= scan.points.len());
     }
 }
 

@@ -213,6 +213,7 @@ impl Placer {
         let own: Vec<Scan> = std::mem::take(&mut f.scans);
         let single = own.len() == 1;
         for (k, mut s) in own.into_iter().enumerate() {
+            warnings.append(&mut s.warnings);
             let offset = f.file_to_local[k];
             let given: Option<(DMat4, String)> = match override_for(opts, &s.name, &f.path, single)
             {

@@ -765,6 +765,7 @@ impl E57Input {
                 pose: Some(s.pose),
                 scanner: s.has_pose.then_some(DVec3::ZERO),
                 sensor_hint: None,
+                warnings: Vec::new(),
             })
             .collect()
     }

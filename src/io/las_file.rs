@@ -220,6 +220,7 @@ impl LasInput {
             pose: None,
             scanner: None,
             sensor_hint: None,
+            warnings: Vec::new(),
         }
     }
 

@@ -189,6 +189,24 @@ impl PlyFile {
     /// Also `None` if any item is not a whole number in `0..=u32::MAX` (a negative index, or a
     /// fractional value in a float-typed list).
     pub fn list_column(&self, element: &str, prop: &str) -> Option<Vec<Vec<u32>>> {
+        self.map_lists(element, prop, to_u32)
+    }
+
+    /// Like [`PlyFile::list_column`], but an item that is not a whole number in
+    /// `0..u32::MAX` becomes `u32::MAX` instead of failing the whole column, so a caller can
+    /// count and drop bad references one by one (`u32::MAX` is never a vertex index).
+    pub fn list_indices(&self, element: &str, prop: &str) -> Option<Vec<Vec<u32>>> {
+        self.map_lists(element, prop, |v| Some(to_u32(v).unwrap_or(u32::MAX)))
+    }
+
+    /// The items of a list property through `item`, one `Vec` per row; `None` if missing,
+    /// not a list, unreadable, or `item` refuses a value.
+    fn map_lists(
+        &self,
+        element: &str,
+        prop: &str,
+        item_of: impl Fn(f64) -> Option<u32>,
+    ) -> Option<Vec<Vec<u32>>> {
         let (def, data) = self.element_parts(element)?;
         let pi = def.props.iter().position(|p| p.name == prop)?;
         let PropertyKind::List { count, item } = def.props.get(pi)?.kind else {
@@ -204,7 +222,7 @@ impl PlyFile {
             let items = row.get(first..end)?;
             let mut list = Vec::with_capacity(n);
             for it in items.chunks_exact(item.size()) {
-                list.push(to_u32(item.read_f64(it, 0)?)?);
+                list.push(item_of(item.read_f64(it, 0)?)?);
             }
             out.push(list);
             Some(())

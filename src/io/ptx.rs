@@ -102,6 +102,7 @@ impl PtxInput {
                 pose: Some(s.pose),
                 scanner: Some(DVec3::ZERO),
                 sensor_hint: None,
+                warnings: Vec::new(),
             })
             .collect()
     }

@@ -28,6 +28,8 @@ pub struct RawScan {
     pub scanner: Option<DVec3>,
     /// The sensor model the file declares.
     pub sensor_hint: Option<SensorModel>,
+    /// What the reader found wrong and worked around (each names the file).
+    pub warnings: Vec<String>,
 }
 
 /// A native acquisition grid of a [`RawScan`], one cell per record.
@@ -37,9 +39,9 @@ pub struct RawGrid {
     pub rows: u32,
     /// Number of columns.
     pub cols: u32,
-    /// Row of each record.
+    /// Row of each record ([`crate::scan::NO_CELL`] for a record without a cell).
     pub row: Vec<u32>,
-    /// Column of each record.
+    /// Column of each record ([`crate::scan::NO_CELL`] for a record without a cell).
     pub col: Vec<u32>,
 }
 

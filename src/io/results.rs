@@ -258,12 +258,18 @@ pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Resul
     };
     let mut t = valid_rows(t, &s.source_index, ds.file_to_world[i]);
     if t.grid.is_none() {
-        t.grid = s.grid.as_ref().map(|g| RawGrid {
-            rows: g.rows,
-            cols: g.cols,
-            row: g.row.clone(),
-            col: g.col.clone(),
-        });
+        // Other formats store a cell for every point: a grid with points outside it stays
+        // behind.
+        t.grid = s
+            .grid
+            .as_ref()
+            .filter(|g| g.uncelled() == 0)
+            .map(|g| RawGrid {
+                rows: g.rows,
+                cols: g.cols,
+                row: g.row.clone(),
+                col: g.col.clone(),
+            });
     }
     Ok(t)
 }

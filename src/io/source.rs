@@ -6,7 +6,7 @@
 use super::ply::PlyFile;
 use super::raw::{RawGrid, RawScan};
 use crate::error::{Error, Result};
-use crate::scan::{Grid, Scan};
+use crate::scan::{Grid, Scan, NO_CELL};
 use glam::{DMat4, DVec3, Vec3};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -369,23 +369,23 @@ pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
         }
         (points, source_index, normals, cells, skipped)
     };
+    let mut warnings = std::mem::take(&mut raw.warnings);
     let grid = match (raw.grid, cells) {
         (Some(RawGrid { rows, cols, .. }), Some((row, col))) => {
-            // A valid point outside the grid leaves the grid unusable as a whole.
-            if row
-                .par_iter()
-                .zip(&col)
-                .any(|(&r, &c)| r >= rows || c >= cols)
-            {
-                None
-            } else {
-                Some(Grid {
+            let label = match Format::of_path(path) {
+                Ok(f) if f.multi_scan() => format!("{}: scan {}", path.display(), raw.name),
+                _ => path.display().to_string(),
+            };
+            checked_grid(
+                Grid {
                     rows,
                     cols,
                     row,
                     col,
-                })
-            }
+                },
+                &label,
+                &mut warnings,
+            )
         }
         _ => None,
     };
@@ -402,9 +402,68 @@ pub fn scan_from_raw(mut raw: RawScan, path: &Path) -> Result<(Scan, DVec3)> {
             pose,
             skipped_nonfinite: skipped,
             sensor_hint: raw.sensor_hint,
+            warnings,
         },
         offset,
     ))
+}
+
+/// The end of a warning about a native grid that is not used.
+pub(crate) const GRID_IGNORED: &str =
+    "the native grid is ignored and the sensor model fitted to the points";
+
+/// More than this fraction of a native grid's references invalid, of a scan's points without
+/// a cell, or of its points in a cell already holding another, and the grid is not trusted.
+pub const MAX_GRID_DEFECTS: f64 = 0.05;
+
+/// `grid` (one cell per valid point) when it can serve as the range map, with a warning
+/// about what is wrong with it into `warnings` (`label` names the file and scan). A point
+/// outside the grid is marked [`NO_CELL`] and placed by the fitted sensor model; points
+/// sharing a cell are kept (the range map holds the nearest). Beyond [`MAX_GRID_DEFECTS`]
+/// of either, the grid is no scanner grid and is dropped.
+fn checked_grid(mut grid: Grid, label: &str, warnings: &mut Vec<String>) -> Option<Grid> {
+    let n = grid.row.len();
+    let (rows, cols) = (grid.rows, grid.cols);
+    grid.row
+        .par_iter_mut()
+        .zip(grid.col.par_iter_mut())
+        .for_each(|(r, c)| {
+            if *r >= rows || *c >= cols {
+                (*r, *c) = (NO_CELL, NO_CELL);
+            }
+        });
+    let uncelled = grid.uncelled();
+    let too_many = |k: usize, of: usize| k as f64 > MAX_GRID_DEFECTS * of as f64;
+    let pct = MAX_GRID_DEFECTS * 100.0;
+    if too_many(uncelled, n) {
+        warnings.push(format!(
+            "{label}: {uncelled} of {n} points have no cell in the native {cols} × {rows} grid \
+             (more than {pct} %); {GRID_IGNORED}"
+        ));
+        return None;
+    }
+    let shared = (n - uncelled) - grid.occupied_cells();
+    if too_many(shared, n - uncelled) {
+        warnings.push(format!(
+            "{label}: {shared} of {n} points fall in a native grid cell already holding another \
+             point (more than {pct} %), which a scanner grid does not; {GRID_IGNORED}"
+        ));
+        return None;
+    }
+    if uncelled > 0 {
+        warnings.push(format!(
+            "{label}: {uncelled} of {n} points have no cell in the native {cols} × {rows} grid; \
+             they are placed by the sensor model fitted to the grid"
+        ));
+    }
+    if shared > 0 {
+        warnings.push(format!(
+            "{label}: {shared} of {n} points fall in a native grid cell already holding another \
+             point; the range map keeps the nearest point of each cell and the others share \
+             its pixel"
+        ));
+    }
+    Some(grid)
 }
 
 /// The bounding-box centre of `xyz` (rounded to metres) when it lies beyond

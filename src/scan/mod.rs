@@ -6,7 +6,13 @@ pub mod normals;
 pub mod occupancy;
 
 use glam::{DMat4, Vec3};
+use rayon::prelude::*;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Row and column of a point the native grid does not place (its reference in the file was
+/// invalid): such a point is placed by the sensor model fitted to the grid.
+pub const NO_CELL: u32 = u32::MAX;
 
 /// A scan's native acquisition grid: the (row, column) of every valid point, so the grid
 /// itself can serve as the range map instead of resampling.
@@ -16,10 +22,60 @@ pub struct Grid {
     pub rows: u32,
     /// Number of columns of the grid.
     pub cols: u32,
-    /// Row of each valid point (same order as [`Scan::points`]).
+    /// Row of each valid point (same order as [`Scan::points`]), [`NO_CELL`] for a point
+    /// without a cell.
     pub row: Vec<u32>,
-    /// Column of each valid point.
+    /// Column of each valid point, [`NO_CELL`] for a point without a cell.
     pub col: Vec<u32>,
+}
+
+impl Grid {
+    /// True when point `i` has a cell inside the grid.
+    #[inline]
+    pub fn has_cell(&self, i: usize) -> bool {
+        self.row[i] < self.rows && self.col[i] < self.cols
+    }
+
+    /// Number of points without a cell inside the grid.
+    pub fn uncelled(&self) -> usize {
+        self.row
+            .par_iter()
+            .zip(self.col.par_iter())
+            .filter(|&(&r, &c)| r >= self.rows || c >= self.cols)
+            .count()
+    }
+
+    /// Number of distinct cells holding at least one point (never more than the points).
+    pub fn occupied_cells(&self) -> usize {
+        let cells = u64::from(self.rows) * u64::from(self.cols);
+        let keys = || {
+            self.row
+                .par_iter()
+                .zip(self.col.par_iter())
+                .filter(|&(&r, &c)| r < self.rows && c < self.cols)
+                .map(|(&r, &c)| u64::from(r) * u64::from(self.cols) + u64::from(c))
+        };
+        // A bitmap of the cells when it is no larger than a key per point (or small anyway);
+        // a sparse grid of huge declared size sorts the keys instead.
+        if cells <= (64 * self.row.len() as u64).max(1 << 27) {
+            let words: Vec<AtomicU64> = (0..cells.div_ceil(64))
+                .into_par_iter()
+                .map(|_| AtomicU64::new(0))
+                .collect();
+            keys().for_each(|k| {
+                words[(k / 64) as usize].fetch_or(1 << (k % 64), Ordering::Relaxed);
+            });
+            words
+                .par_iter()
+                .map(|w| w.load(Ordering::Relaxed).count_ones() as usize)
+                .sum()
+        } else {
+            let mut v: Vec<u64> = keys().collect();
+            v.par_sort_unstable();
+            v.dedup();
+            v.len()
+        }
+    }
 }
 
 /// One range scan in its sensor's local frame.
@@ -47,6 +103,9 @@ pub struct Scan {
     /// scanner); `--projection auto` fits only this model to the grid. Geometry alone cannot
     /// tell an orthographic view of a plane from a perspective one.
     pub sensor_hint: Option<crate::projection::SensorModel>,
+    /// What reading the input found wrong and worked around (each names the file), passed
+    /// on to the user when the scan is placed.
+    pub warnings: Vec<String>,
 }
 
 impl Scan {
@@ -64,6 +123,7 @@ impl Scan {
             pose: DMat4::IDENTITY,
             skipped_nonfinite: 0,
             sensor_hint: None,
+            warnings: Vec::new(),
         }
     }
 

@@ -365,6 +365,7 @@ pub fn scan_scene(
         pose: station.pose(),
         skipped_nonfinite: 0,
         sensor_hint: Some(station.model),
+        warnings: Vec::new(),
     }
 }
 
