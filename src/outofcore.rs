@@ -415,10 +415,14 @@ impl MapCache {
 /// the report): a run killed while writing its outputs leaves it, and the rerun may replace
 /// those outputs without `--force`.
 pub fn unfinished_marker(cfg: &Config) -> PathBuf {
-    match cfg.only.first() {
-        None => cfg.out_dir.join(".mvao-unfinished"),
-        Some(n) => cfg.out_dir.join(format!(".mvao-unfinished.{n}")),
-    }
+    cfg.out_dir
+        .join(format!(".mvao-unfinished{}", job_suffix(cfg)))
+}
+
+/// What tells one job's files from another's in a shared output directory: `.NAME` for a
+/// `--only NAME` job (jobs merging one scan each run side by side), nothing for a whole run.
+pub fn job_suffix(cfg: &Config) -> String {
+    cfg.only.first().map_or(String::new(), |n| format!(".{n}"))
 }
 
 /// Refuses to start when an output would overwrite an input, or exists without `--force`

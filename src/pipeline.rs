@@ -815,10 +815,9 @@ pub fn run(cfg: &Config) -> Result<Report> {
     let json = serde_json::to_vec_pretty(&report)
         .map_err(|e| Error::Param(format!("cannot encode the report: {e}")))?;
     // Jobs merging one scan each (`--only`) run side by side: one report per job.
-    let rp = match cfg.only.first() {
-        None => cfg.out_dir.join("report.json"),
-        Some(n) => cfg.out_dir.join(format!("report.{n}.json")),
-    };
+    let rp = cfg
+        .out_dir
+        .join(format!("report{}.json", crate::outofcore::job_suffix(cfg)));
     crate::io::atomic::write_atomic(&rp, |w| std::io::Write::write_all(w, &json))?;
     // The run is complete: its outputs are protected again.
     let marker = crate::outofcore::unfinished_marker(cfg);
