@@ -31,7 +31,14 @@ fn main() {
     };
     let v = prepare_view(&s, ProjectionChoice::Auto, &prm).expect("prepare");
     let (g, proj) = (&v.gbuf, &v.sensor.projection);
-    for (d, st) in [(8u32, 8u32), (1, 8), (8, 1), (1, 1)] {
+    // `-- once`: the 8×8 budget once (for instruction-level profilers).
+    let once = std::env::args().any(|a| a == "once");
+    let budgets: &[(u32, u32)] = if once {
+        &[(8, 8)]
+    } else {
+        &[(8, 8), (1, 8), (8, 1), (1, 1)]
+    };
+    for &(d, st) in budgets {
         let p = SsaoParams {
             directions: d,
             steps: st,
@@ -39,7 +46,7 @@ fn main() {
         };
         let mut best = f64::INFINITY;
         let mut sum = 0.0f64;
-        for _ in 0..5 {
+        for _ in 0..if once { 1 } else { 5 } {
             let t = Instant::now();
             let m = ssao::compute(g, proj, &p);
             best = best.min(t.elapsed().as_secs_f64());

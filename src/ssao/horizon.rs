@@ -142,6 +142,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
         .enumerate()
         .for_each(|(band, (aband, fband))| {
             let rows = aband.len() / w;
+            let mut grp = Group::default();
             for x0 in (0..w).step_by(TILE) {
                 for r in 0..rows {
                     let y = band * BAND + r;
@@ -150,7 +151,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                         if !g.is_valid(c) {
                             continue;
                         }
-                        match ctx.pixel(x, y, c) {
+                        match ctx.pixel(x, y, c, &mut grp) {
                             Some(a) => aband[r * w + x] = a,
                             None => fband[r * w + x] = true,
                         }
@@ -308,8 +309,8 @@ impl<'a> Ctx<'a> {
     }
 
     /// Obscurance of valid pixel `c = (x, y)`; `None` when it must be flagged.
-    fn pixel(&self, x: usize, y: usize, c: usize) -> Option<f32> {
-        self.pixel_with(x, y, c, Self::setup_lanes, Self::march_lanes)
+    fn pixel(&self, x: usize, y: usize, c: usize, grp: &mut Group) -> Option<f32> {
+        self.pixel_with(x, y, c, grp, Self::setup_lanes, Self::march_lanes)
     }
 
     /// [`Ctx::pixel`] with each group of [`LANES`] directions set up by `setup` and its
@@ -321,6 +322,7 @@ impl<'a> Ctx<'a> {
         x: usize,
         y: usize,
         c: usize,
+        grp: &mut Group,
         setup: impl Fn(&Self, &Frame, &mut Dirs, &mut Group, &mut [Term; LANES]),
         march: impl Fn(&Self, &mut Group, usize, Vec3A, Vec3A) -> bool,
     ) -> Option<f32> {
@@ -392,17 +394,17 @@ impl<'a> Ctx<'a> {
         let (mut sum_s, mut sum_t, mut any) = (0.0f32, 0.0f32, false);
         let mut left = self.directions;
         while left > 0 {
-            let mut grp = Group {
-                n: left.min(LANES as u32) as usize,
-                ..Group::default()
-            };
+            // A lane's horizon, position and step are set when its count is; until then the
+            // lane is idle and what it holds from an earlier group is never read.
+            grp.n = left.min(LANES as u32) as usize;
+            grp.count = [0; LANES];
             // What each direction of the group adds to Σ T and Σ S: its open value, and
             // either that again (nothing to march) or its lane's march.
             let mut terms = [Term::None; LANES];
-            setup(self, &frame, &mut dirs, &mut grp, &mut terms);
+            setup(self, &frame, &mut dirs, grp, &mut terms);
             left -= grp.n as u32;
             if grp.count.iter().any(|&k| k > 0) {
-                any |= march(self, &mut grp, c, pa, na);
+                any |= march(self, grp, c, pa, na);
             }
             for term in terms {
                 match term {
@@ -671,51 +673,64 @@ impl<'a> Ctx<'a> {
         }
         let steps = grp.count.iter().copied().max().unwrap_or(0);
         let mut any = false;
-        for k in 0..steps {
-            let mut q = [Vec3A::NAN; LANES];
+        // The samples of a block of steps are all loaded before any is tested, lanes apart
+        // (x, y, z) so that a step's lanes load as three vectors. A lane with no sample has
+        // x = NaN, which makes every test below fail whatever y and z hold.
+        const BLOCK: u32 = 8;
+        let mut k0 = 0;
+        while k0 < steps {
+            let kn = (steps - k0).min(BLOCK);
+            let mut qx = [[f32::NAN; LANES]; BLOCK as usize];
+            let mut qy = [[0.0f32; LANES]; BLOCK as usize];
+            let mut qz = [[0.0f32; LANES]; BLOCK as usize];
             for l in 0..grp.n {
                 if !live[l] {
                     continue;
                 }
-                if k >= grp.count[l] {
-                    live[l] = false;
-                    continue;
-                }
-                let Some(i) = self.next_index(grp, l) else {
-                    live[l] = false;
-                    continue;
-                };
-                let s = self.pts[i];
-                if i != c && !s.x.is_nan() {
-                    any = true;
-                    q[l] = s;
-                }
-            }
-            let vx = Vec4::new(q[0].x, q[1].x, q[2].x, q[3].x) - pax;
-            let vy = Vec4::new(q[0].y, q[1].y, q[2].y, q[3].y) - pay;
-            let vz = Vec4::new(q[0].z, q[1].z, q[2].z, q[3].z) - paz;
-            let l2 = (vx * vx + vy * vy) + vz * vz;
-            // Empty, own or skipped lanes are NaN and fail every test.
-            let inside = l2.cmplt(tmax2);
-            let height = (nax * vx + nay * vy) + naz * vz;
-            let height = Vec4::select((height * height).cmpgt(l2 * 1e-10), height, Vec4::ZERO);
-            let x = (vx * fxx + vy * fxy) + vz * fxz;
-            let y = (vx * fyx + vy * fyy) + vz * fyz;
-            let raise = inside & height.cmpgt(Vec4::ZERO) & x.cmpgt(Vec4::ZERO);
-            let mut bits = raise.bitmask();
-            if bits != 0 {
-                bits &= above_horizon_lanes(x, y, Vec4::from_array(cos_h)).bitmask();
-                let (xs, ys) = (x.to_array(), y.to_array());
-                let (pxs, pys) = (prev_x.to_array(), prev_y.to_array());
-                while bits != 0 {
-                    let l = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    grp.hz[l].raise(xs[l], ys[l], pxs[l], pys[l], self.inv_tmax);
-                    cos_h[l] = grp.hz[l].sc.1;
+                for k in 0..kn as usize {
+                    if k0 + k as u32 >= grp.count[l] {
+                        live[l] = false;
+                        break;
+                    }
+                    let Some(i) = self.next_index(grp, l) else {
+                        live[l] = false;
+                        break;
+                    };
+                    let s = self.pts[i];
+                    if i != c && !s.x.is_nan() {
+                        any = true;
+                        (qx[k][l], qy[k][l], qz[k][l]) = (s.x, s.y, s.z);
+                    }
                 }
             }
-            prev_x = Vec4::select(inside, x, prev_x);
-            prev_y = Vec4::select(inside, y, prev_y);
+            for k in 0..kn as usize {
+                let vx = Vec4::from_array(qx[k]) - pax;
+                let vy = Vec4::from_array(qy[k]) - pay;
+                let vz = Vec4::from_array(qz[k]) - paz;
+                let l2 = (vx * vx + vy * vy) + vz * vz;
+                // Lanes without a sample are NaN and fail every test.
+                let inside = l2.cmplt(tmax2);
+                let height = (nax * vx + nay * vy) + naz * vz;
+                let height = Vec4::select((height * height).cmpgt(l2 * 1e-10), height, Vec4::ZERO);
+                let x = (vx * fxx + vy * fxy) + vz * fxz;
+                let y = (vx * fyx + vy * fyy) + vz * fyz;
+                let raise = inside & height.cmpgt(Vec4::ZERO) & x.cmpgt(Vec4::ZERO);
+                let mut bits = raise.bitmask();
+                if bits != 0 {
+                    bits &= above_horizon_lanes(x, y, Vec4::from_array(cos_h)).bitmask();
+                    let (xs, ys) = (x.to_array(), y.to_array());
+                    let (pxs, pys) = (prev_x.to_array(), prev_y.to_array());
+                    while bits != 0 {
+                        let l = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        grp.hz[l].raise(xs[l], ys[l], pxs[l], pys[l], self.inv_tmax);
+                        cos_h[l] = grp.hz[l].sc.1;
+                    }
+                }
+                prev_x = Vec4::select(inside, x, prev_x);
+                prev_y = Vec4::select(inside, y, prev_y);
+            }
+            k0 += kn;
         }
         any
     }
@@ -1573,8 +1588,22 @@ mod tests {
                         continue;
                     }
                     let (x, y) = (c % g.width, c / g.width);
-                    let one = ctx.pixel_with(x, y, c, Ctx::setup_one, Ctx::march_one);
-                    let lanes = ctx.pixel_with(x, y, c, Ctx::setup_lanes, Ctx::march_lanes);
+                    let one = ctx.pixel_with(
+                        x,
+                        y,
+                        c,
+                        &mut Group::default(),
+                        Ctx::setup_one,
+                        Ctx::march_one,
+                    );
+                    let lanes = ctx.pixel_with(
+                        x,
+                        y,
+                        c,
+                        &mut Group::default(),
+                        Ctx::setup_lanes,
+                        Ctx::march_lanes,
+                    );
                     assert_eq!(one.map(f32::to_bits), lanes.map(f32::to_bits), "pixel {c}");
                     raised += usize::from(one.is_some_and(|a| a < 1.0));
                 }
