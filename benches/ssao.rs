@@ -1,6 +1,7 @@
 //! Horizon SSAO alone on one 1440×720 equirect station of the synthetic room (best of five),
-//! for tuning the estimator: `cargo bench --bench ssao` (`-- suite` for a suite station). The
-//! 1×1 row is the per-pixel cost that does not depend on the budget.
+//! for tuning the estimator: `cargo bench --bench ssao` (`-- suite` for a suite station, `-- once`
+//! for the 8×8 budget run once, under an instruction counter). The 1×1 row is the per-pixel cost
+//! that does not depend on the budget.
 
 use mvao::pipeline::prepare_view;
 use mvao::projection::SensorModel;
