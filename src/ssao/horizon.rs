@@ -687,11 +687,10 @@ impl<'a> Ctx<'a> {
                 if !live[l] {
                     continue;
                 }
-                for k in 0..kn as usize {
-                    if k0 + k as u32 >= grp.count[l] {
-                        live[l] = false;
-                        break;
-                    }
+                // The lane's samples left in this block; it is done once they run out.
+                let todo = grp.count[l].saturating_sub(k0).min(kn);
+                live[l] = k0 + kn < grp.count[l];
+                for k in 0..todo as usize {
                     let Some(i) = self.next_index(grp, l) else {
                         live[l] = false;
                         break;
