@@ -151,6 +151,7 @@ where
         let mut cand = [0u64; WINDOW];
         let mut scratch32: Scratch<u32> = [[0; SCRATCH]; 2];
         let mut scratch: Scratch<u64> = [[0; SCRATCH]; 2];
+        let mut band = Band::default();
         let mut guess = 0.0f32;
         for (o, r) in rad.iter_mut().enumerate() {
             let i = ci * CHUNK + o;
@@ -161,8 +162,16 @@ where
             // whose bits order after every distance, so the k-th smallest is the same.
             let (mut m, mut found);
             let mut half = GRID_R0;
+            // Neighbouring points have nearly the same d_k: the radii-only pass gathers the
+            // keys within ±10 % (of d_k²) of the previous one while it computes them.
+            let (lo, hi) = if guess > 0.0 {
+                (guess * 0.9, guess * 1.1)
+            } else {
+                (f32::INFINITY, f32::NEG_INFINITY)
+            };
             loop {
                 (m, found) = (0, 0);
+                band.clear(lo, hi);
                 let (ca, cb) = (
                     (c0 - half).max(0) as usize,
                     (c0 + half).min(cols - 1) as usize,
@@ -182,7 +191,7 @@ where
                         found = m;
                     } else {
                         let (xs, ys, zs) = (&gx[run.clone()], &gy[run.clone()], &gz[run]);
-                        found += distances(xs, ys, zs, p, &mut keys[m..m + xs.len()]);
+                        found += distances(xs, ys, zs, p, &mut keys[m..m + xs.len()], &mut band);
                         m += xs.len();
                     }
                 }
@@ -195,14 +204,13 @@ where
             let dk = if found == 0 {
                 0.0
             } else {
-                // Neighbouring points have nearly the same d_k: look within ±10 % (of d_k²)
-                // of the previous one first.
-                let near = (guess > 0.0)
-                    .then(|| {
-                        let (lo, hi) = ((guess * 0.9).to_bits(), (guess * 1.1).to_bits());
-                        kth_between(&keys[..m], kk - 1, lo, hi, &mut scratch32[0])
-                    })
-                    .flatten();
+                let near = if guess <= 0.0 {
+                    None
+                } else if need_normals {
+                    kth_between(&keys[..m], kk - 1, lo, hi, &mut scratch32[0])
+                } else {
+                    band.kth(kk - 1)
+                };
                 let d2 = near.unwrap_or_else(|| {
                     select(&mut keys[..m], kk - 1, &mut scratch32);
                     keys[kk - 1]
@@ -232,20 +240,38 @@ where
 
 /// The squared distances from `p` of the cells at `(xs, ys, zs)` as float bits into `out`,
 /// four cells per SIMD instruction, with the arithmetic of `Vec3::distance_squared` (the
-/// same bits as one cell at a time). Returns how many are not NaN (the cells holding a point:
-/// points are finite, empty cells NaN).
+/// same bits as one cell at a time), and the ones within `band`'s bracket into `band`.
+/// Returns how many are not NaN (the cells holding a point: points are finite, empty cells
+/// NaN).
 #[inline(always)]
-fn distances(xs: &[f32], ys: &[f32], zs: &[f32], p: Vec3A, out: &mut [u32]) -> usize {
+fn distances(
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    p: Vec3A,
+    out: &mut [u32],
+    band: &mut Band,
+) -> usize {
     let n = xs.len().min(ys.len()).min(zs.len()).min(out.len());
     let (px, py, pz) = (Vec4::splat(p.x), Vec4::splat(p.y), Vec4::splat(p.z));
+    let (lo, hi) = (Vec4::splat(band.lo), Vec4::splat(band.hi));
     let (mut i, mut found) = (0, 0);
     while i + 4 <= n {
         let dx = Vec4::from_slice(&xs[i..i + 4]) - px;
         let dy = Vec4::from_slice(&ys[i..i + 4]) - py;
         let dz = Vec4::from_slice(&zs[i..i + 4]) - pz;
         let d2 = dx * dx + dy * dy + dz * dz;
-        out[i..i + 4].copy_from_slice(&d2.to_array().map(f32::to_bits));
+        let bits = d2.to_array().map(f32::to_bits);
+        out[i..i + 4].copy_from_slice(&bits);
         found += d2.cmpeq(d2).bitmask().count_ones() as usize;
+        // NaN compares false both ways: empty cells are neither below nor within.
+        band.below += d2.cmplt(lo).bitmask().count_ones() as usize;
+        let within = (d2.cmpge(lo) & d2.cmple(hi)).bitmask();
+        if within != 0 {
+            for (l, &b) in bits.iter().enumerate() {
+                band.push(b, within >> l & 1 != 0);
+            }
+        }
         i += 4;
     }
     for j in i..n {
@@ -253,13 +279,62 @@ fn distances(xs: &[f32], ys: &[f32], zs: &[f32], p: Vec3A, out: &mut [u32]) -> u
         let d2 = dx * dx + dy * dy + dz * dz;
         out[j] = d2.to_bits();
         found += usize::from(!d2.is_nan());
+        band.below += usize::from(d2 < band.lo);
+        band.push(d2.to_bits(), d2 >= band.lo && d2 <= band.hi);
     }
     found
 }
 
+/// The distances (as float bits) within a bracket `[lo, hi]`, and how many fell below it,
+/// gathered while a window's distances are computed.
+struct Band {
+    lo: f32,
+    hi: f32,
+    below: usize,
+    len: usize,
+    values: [u32; SCRATCH],
+}
+
+impl Default for Band {
+    fn default() -> Self {
+        Band {
+            lo: f32::INFINITY,
+            hi: f32::NEG_INFINITY,
+            below: 0,
+            len: 0,
+            values: [0; SCRATCH],
+        }
+    }
+}
+
+impl Band {
+    /// Empties the band and sets its bracket.
+    fn clear(&mut self, lo: f32, hi: f32) {
+        (self.lo, self.hi, self.below, self.len) = (lo, hi, 0, 0);
+    }
+
+    /// Adds `v` when `keep` (written either way: no branch on a coin toss).
+    #[inline(always)]
+    fn push(&mut self, v: u32, keep: bool) {
+        // The modulo never wraps (at most SCRATCH values); it spares a bounds check.
+        self.values[self.len % SCRATCH] = v;
+        self.len += usize::from(keep);
+    }
+
+    /// The `k`-th smallest of all the values seen (0-based) when it lies in the bracket.
+    fn kth(&mut self, k: usize) -> Option<u32> {
+        if self.below > k || self.below + self.len <= k {
+            return None;
+        }
+        Some(nth_of_few(&mut self.values[..self.len], k - self.below))
+    }
+}
+
 /// The `k`-th smallest of `v` (0-based) when it lies in `[lo, hi]`, else `None`: one pass
 /// counts the values below `lo` and gathers those in the bracket, which are then few.
-fn kth_between(v: &[u32], k: usize, lo: u32, hi: u32, buf: &mut [u32; SCRATCH]) -> Option<u32> {
+fn kth_between(v: &[u32], k: usize, lo: f32, hi: f32, buf: &mut [u32; SCRATCH]) -> Option<u32> {
+    // Non-negative floats order like their bits.
+    let (lo, hi) = (lo.to_bits(), hi.to_bits());
     let (mut below, mut n) = (0usize, 0usize);
     for &x in v {
         // The modulo never wraps (at most SCRATCH values); it spares a bounds check.
@@ -270,11 +345,24 @@ fn kth_between(v: &[u32], k: usize, lo: u32, hi: u32, buf: &mut [u32; SCRATCH]) 
     if below > k || below + n <= k {
         return None;
     }
-    let band = &mut buf[..n];
-    let r = k - below;
-    // A bracket holds a handful of values (std sorts short slices by insertion).
-    band.select_nth_unstable(r);
-    Some(band[r])
+    Some(nth_of_few(&mut buf[..n], k - below))
+}
+
+/// The `r`-th smallest of `v` (0-based, `r < v.len()`), for a bracket's handful of values
+/// (5 to 20 on a scanner's grid): the largest value with at most `r` values below it,
+/// counted without a branch. Insertion sort, std's choice for short slices, mispredicted
+/// about as often as it compared.
+fn nth_of_few(v: &mut [u32], r: usize) -> u32 {
+    if v.len() > 32 {
+        v.select_nth_unstable(r);
+        return v[r];
+    }
+    let mut best = 0;
+    for &x in v.iter() {
+        let below: usize = v.iter().map(|&y| usize::from(y < x)).sum();
+        best = if below <= r { best.max(x) } else { best };
+    }
+    best
 }
 
 /// Room for the values [`select`] partitions: a whole `GRID_RMAX` window.
@@ -457,6 +545,58 @@ mod tests {
                 assert_eq!(v[k], sorted[k], "n {n} k {k}");
                 assert!(v[..k].iter().all(|&x| x <= v[k]));
                 assert!(v[k + 1..].iter().all(|&x| x >= v[k]));
+            }
+        }
+    }
+
+    #[test]
+    fn bracketed_selection_agrees_with_a_sort() {
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for n in 1..=SCRATCH {
+            for rep in 0..8 {
+                // Squared distances as a window holds them: ties (few distinct values on some
+                // rounds), empty cells (NaN) and a bracket that may miss.
+                let d2: Vec<f32> = (0..n)
+                    .map(|_| match next() % 8 {
+                        0 => f32::NAN,
+                        _ if rep % 2 == 0 => (next() % 5) as f32 * 0.25,
+                        _ => (next() % 100_000) as f32 * 1e-5,
+                    })
+                    .collect();
+                let mut sorted: Vec<f32> = d2.iter().copied().filter(|x| !x.is_nan()).collect();
+                if sorted.is_empty() {
+                    continue;
+                }
+                sorted.sort_unstable_by(f32::total_cmp);
+                let k = next() as usize % sorted.len();
+                let guess = sorted[next() as usize % sorted.len()].max(1e-6);
+                let (lo, hi) = (guess * 0.9, guess * 1.1);
+                // Cells at (√d2, 0, 0) from the origin (NaN stays empty); the truth is taken
+                // from the keys the pass computed, as the square may round.
+                let xs: Vec<f32> = d2.iter().map(|x| x.sqrt()).collect();
+                let zero = vec![0.0; n];
+                let mut keys = vec![0u32; n];
+                let mut band = Band::default();
+                band.clear(lo, hi);
+                let found = distances(&xs, &zero, &zero, Vec3A::ZERO, &mut keys, &mut band);
+                assert_eq!(found, sorted.len());
+                let mut truth: Vec<u32> =
+                    keys.iter().copied().filter(|&b| b < 0x7f80_0000).collect();
+                truth.sort_unstable();
+                let fused = band.kth(k);
+                let scalar = kth_between(&keys, k, lo, hi, &mut [0; SCRATCH]);
+                assert_eq!(fused, scalar, "n {n} k {k}");
+                let inside = (lo.to_bits()..=hi.to_bits()).contains(&truth[k]);
+                assert_eq!(fused, inside.then_some(truth[k]), "n {n} k {k}");
+                let mut few = truth.clone();
+                few.reverse();
+                assert_eq!(nth_of_few(&mut few, k), truth[k], "n {n} k {k}");
             }
         }
     }
