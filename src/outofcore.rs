@@ -222,10 +222,17 @@ pub fn default_budget() -> u64 {
 /// Blocks of values are hashed in parallel and the digest hashes their digests in order.
 fn data_hash(s: &Scan) -> String {
     const BLOCK: usize = 1 << 16;
-    fn blocks<T: Sync>(v: &[T], bytes: impl Fn(&T, &mut Vec<u8>) + Sync) -> Vec<u128> {
+    fn blocks<T: Sync + bytemuck::Pod>(
+        v: &[T],
+        bytes: impl Fn(&T, &mut Vec<u8>) + Sync,
+    ) -> Vec<u128> {
         v.par_chunks(BLOCK)
             .map(|c| {
-                let mut buf = Vec::with_capacity(c.len() * 12);
+                // The little-endian bytes of the values are their memory on such a machine.
+                if cfg!(target_endian = "little") {
+                    return xxhash_rust::xxh3::xxh3_128(bytemuck::cast_slice(c));
+                }
+                let mut buf = Vec::with_capacity(std::mem::size_of_val(c));
                 for x in c {
                     bytes(x, &mut buf);
                 }
@@ -1264,6 +1271,72 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn data_hash_is_that_of_the_values_little_endian_bytes() {
+        // The hash recorded in work directories: each block of 2^16 values hashed from their
+        // little-endian bytes, the block hashes fed in order after a tag and their count.
+        fn reference(s: &Scan) -> String {
+            fn blocks(bytes: &[u8], per: usize) -> Vec<u128> {
+                bytes
+                    .chunks((1 << 16) * per)
+                    .map(xxhash_rust::xxh3::xxh3_128)
+                    .collect()
+            }
+            let le = |v: &mut Vec<u8>, x: f32| v.extend_from_slice(&x.to_le_bytes());
+            let vec3 = |ps: &[glam::Vec3]| {
+                let mut v = Vec::new();
+                for p in ps {
+                    for x in p.to_array() {
+                        le(&mut v, x);
+                    }
+                }
+                blocks(&v, 12)
+            };
+            let u32s = |xs: &[u32]| {
+                let v: Vec<u8> = xs.iter().flat_map(|x| x.to_le_bytes()).collect();
+                blocks(&v, 4)
+            };
+            let mut h = xxhash_rust::xxh3::Xxh3::new();
+            let mut feed = |tag: &[u8], d: Vec<u128>| {
+                h.update(tag);
+                h.update(&(d.len() as u64).to_le_bytes());
+                for x in d {
+                    h.update(&x.to_le_bytes());
+                }
+            };
+            feed(b"p", vec3(&s.points));
+            if let Some(n) = &s.normals {
+                feed(b"n", vec3(n));
+            }
+            if let Some(g) = &s.grid {
+                feed(b"g", vec![u128::from(g.rows), u128::from(g.cols)]);
+                feed(b"r", u32s(&g.row));
+                feed(b"c", u32s(&g.col));
+            }
+            format!("{:032x}", h.digest128())
+        }
+        // Sizes around the block boundary.
+        for n in [0usize, 1, 65_535, 65_536, 65_537, 200_000] {
+            let points: Vec<glam::Vec3> = (0..n)
+                .map(|i| glam::Vec3::new(i as f32, -(i as f32) * 0.5, 1e-3 * i as f32))
+                .collect();
+            let mut s = Scan::from_points("s", points.clone());
+            assert_eq!(data_hash(&s), reference(&s), "{n} points");
+            s.normals = Some(points.iter().map(|p| p.normalize_or_zero()).collect());
+            s.grid = Some(crate::scan::Grid {
+                rows: 7,
+                cols: n as u32,
+                row: (0..n as u32).map(|i| i % 7).collect(),
+                col: (0..n as u32).collect(),
+            });
+            assert_eq!(
+                data_hash(&s),
+                reference(&s),
+                "{n} points with normals and grid"
+            );
+        }
+    }
 
     #[test]
     fn held_scans_are_kept_while_they_and_the_views_fit() {

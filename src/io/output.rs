@@ -71,7 +71,7 @@ pub fn nonfinite_properties(ply: &PlyFile) -> Vec<(String, usize)> {
     let Some(ei) = ply.element("vertex") else {
         return Vec::new();
     };
-    ply.header.elements[ei]
+    let names: Vec<&str> = ply.header.elements[ei]
         .props
         .iter()
         .filter(|p| {
@@ -80,11 +80,19 @@ pub fn nonfinite_properties(ply: &PlyFile) -> Vec<(String, usize)> {
                 PropertyKind::Scalar(ScalarType::F32 | ScalarType::F64)
             ) && !["x", "y", "z"].contains(&p.name.as_str())
         })
-        .filter_map(|p| {
-            let bad = ply.map_scalars("vertex", [p.name.as_str()], |[v]| !v.is_finite())?;
-            let n = bad.iter().filter(|&&b| b).count();
-            (n > 0).then(|| (p.name.clone(), n))
-        })
+        .map(|p| p.name.as_str())
+        .collect();
+    if names.is_empty() {
+        return Vec::new();
+    }
+    let counts = ply
+        .count_scalars("vertex", &names, |v| !v.is_finite())
+        .unwrap_or_default();
+    names
+        .iter()
+        .zip(counts)
+        .filter(|(_, n)| *n > 0)
+        .map(|(p, n)| (p.to_string(), n))
         .collect()
 }
 

@@ -671,6 +671,71 @@ impl PlyFile {
         Some(out)
     }
 
+    /// For each of the scalar properties `props` of `element`, how many rows hold a value
+    /// `bad` says yes to: one pass over the rows with no per-row output (in parallel for
+    /// fixed-size rows). `None` in the cases where [`map_scalars`](Self::map_scalars) gives
+    /// `None`; a value that cannot be read in a fixed-size row counts as NaN.
+    pub fn count_scalars(
+        &self,
+        element: &str,
+        props: &[&str],
+        bad: impl Fn(f64) -> bool + Sync,
+    ) -> Option<Vec<usize>> {
+        let (def, data) = self.element_parts(element)?;
+        let mut cols = Vec::with_capacity(props.len());
+        for name in props {
+            let i = def.props.iter().position(|p| p.name == *name)?;
+            let PropertyKind::Scalar(t) = def.props.get(i)?.kind else {
+                return None;
+            };
+            cols.push((i, t));
+        }
+        let k = cols.len();
+        let add = |mut a: Vec<usize>, b: Vec<usize>| {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+            a
+        };
+        match Layout::of(def, data)? {
+            Layout::Fixed { stride, bytes } => {
+                let mut at = Vec::with_capacity(k);
+                for &(i, t) in &cols {
+                    let off = field_offset(&def.props, &[], i)?;
+                    if off + t.size() > stride {
+                        return None;
+                    }
+                    at.push((off, t));
+                }
+                const ROWS: usize = 1 << 14;
+                Some(
+                    bytes
+                        .par_chunks(stride.max(1) * ROWS)
+                        .map(|rows| {
+                            let mut n = vec![0usize; k];
+                            for row in rows.chunks_exact(stride.max(1)) {
+                                for (n, &(o, t)) in n.iter_mut().zip(&at) {
+                                    *n += usize::from(bad(t.read_f64(row, o).unwrap_or(f64::NAN)));
+                                }
+                            }
+                            n
+                        })
+                        .reduce(|| vec![0; k], add),
+                )
+            }
+            layout @ Layout::Rows { .. } => {
+                let mut n = vec![0usize; k];
+                layout.for_each_row(|row| {
+                    for (n, &(i, t)) in n.iter_mut().zip(&cols) {
+                        *n += usize::from(bad(t.read_f64(row, field_offset(&def.props, row, i)?)?));
+                    }
+                    Some(())
+                })?;
+                Some(n)
+            }
+        }
+    }
+
     /// Positions `[x, y, z]` of the `vertex` element (properties `x`, `y`, `z` of any scalar
     /// type, converted to f64), decoded in one pass over the rows: a fixed-stride walk when the
     /// element has no list property, the row offsets otherwise. `None` if there is no `vertex`
@@ -2146,6 +2211,50 @@ mod tests {
         property list uchar int vertex_indices\nend_header\n\
         -0.06325 0.0359793 0.0420873 \n0.5 0.25 -1 \n1e-3 2 3 \n0 \n1 0 \n0 \n1 1 \n1 2 \n0 \n";
 
+    #[test]
+    fn count_scalars_equals_counting_the_columns() {
+        // Enough rows for several parallel chunks, in both layouts.
+        let rows = 40_000usize;
+        let mut fixed = String::new();
+        let mut listed = String::new();
+        for (text, list) in [(&mut fixed, false), (&mut listed, true)] {
+            text.push_str(&format!(
+                "ply\nformat ascii 1.0\nelement vertex {rows}\nproperty float x\n{}\
+                 property double y\nproperty uchar k\nend_header\n",
+                if list {
+                    "property list uchar int idx\n"
+                } else {
+                    ""
+                }
+            ));
+            for i in 0..rows {
+                let x = if i % 7 == 0 { "nan" } else { "1.5" };
+                let y = if i % 11 == 0 { "inf" } else { "-2" };
+                // Lists of 0, 1 or 2 items: rows of three lengths.
+                let idx = match (list, i % 3) {
+                    (false, _) => String::new(),
+                    (true, 0) => " 0".to_string(),
+                    (true, 1) => " 1 4".to_string(),
+                    _ => " 2 4 5".to_string(),
+                };
+                text.push_str(&format!("{x}{idx} {y} {}\n", i % 256));
+            }
+        }
+        for text in [&fixed, &listed] {
+            let p = read_ok(text.as_bytes());
+            let bad = |v: f64| !v.is_finite();
+            let n = p.count_scalars("vertex", &["y", "x", "k"], bad).unwrap();
+            let count = |name: &str| {
+                let c = p.scalar_column("vertex", name).unwrap();
+                c.iter().filter(|v| bad(**v)).count()
+            };
+            assert_eq!(n, [count("y"), count("x"), count("k")]);
+            assert_eq!(n[0], rows.div_ceil(11));
+            assert_eq!(n[1], rows.div_ceil(7));
+            assert!(p.count_scalars("vertex", &["x", "nope"], bad).is_none());
+            assert!(p.count_scalars("face", &["x"], bad).is_none());
+        }
+    }
     #[test]
     fn range_grid_empty_and_single_lists() {
         let p = read_ok(RANGE_SCAN.as_bytes());
