@@ -217,15 +217,25 @@ pub struct PointCells {
     cells: Cells,
     /// Index into `cells.cells` of each point.
     cell_of: Vec<u32>,
+    /// Each cell's own level ([`level_for`] of its radius; `None`: not finite), the same for
+    /// every view it is tested against.
+    levels: Vec<Option<i32>>,
 }
 
 impl PointCells {
     /// Cells of scan i's local `points` with their radii, placed by `pose`.
     pub fn new(points: &[Vec3], radii: &[f32], pose: DMat4) -> PointCells {
         let (cells, of) = Cells::build(points, radii, pose, true);
+        let slack = (cells.base as f64).exp2() * ROUNDING_SHARE;
+        let levels = cells
+            .rmax
+            .par_iter()
+            .map(|&r| level_for(r, cells.base, slack))
+            .collect();
         PointCells {
             cells,
             cell_of: of.unwrap_or_default(),
+            levels,
         }
     }
 
@@ -413,11 +423,7 @@ impl ViewCells {
         };
         // Each target cell's level; those above the sets are tested against every view cell,
         // up to a count (beyond it they are kept).
-        let mut own: Vec<Option<i32>> = tc
-            .rmax
-            .par_iter()
-            .map(|&r| level_for(r, tc.base, slack))
-            .collect();
+        let mut own = t.levels.clone();
         let mut listed = 0usize;
         for o in own.iter_mut() {
             if o.is_some_and(|l| l > top) {
