@@ -246,23 +246,28 @@ fn data_hash(s: &Scan) -> String {
         }
     };
     let u32le = |v: &u32, b: &mut Vec<u8>| b.extend_from_slice(&v.to_le_bytes());
+    let mut parts = vec![(&b"p"[..], blocks(&s.points, vec3))];
+    if let Some(n) = &s.normals {
+        parts.push((b"n", blocks(n, vec3)));
+    }
+    if let Some(g) = &s.grid {
+        parts.push((b"g", vec![u128::from(g.rows), u128::from(g.cols)]));
+        parts.push((b"r", blocks(&g.row, u32le)));
+        parts.push((b"c", blocks(&g.col, u32le)));
+    }
+    digest(parts)
+}
+
+/// The hash of tagged lists of block hashes: each tag, the list's length and its hashes, in
+/// order.
+fn digest(parts: Vec<(&[u8], Vec<u128>)>) -> String {
     let mut h = xxhash_rust::xxh3::Xxh3::new();
-    let mut feed = |tag: &[u8], d: Vec<u128>| {
+    for (tag, d) in parts {
         h.update(tag);
         h.update(&(d.len() as u64).to_le_bytes());
         for x in d {
             h.update(&x.to_le_bytes());
         }
-    };
-    feed(b"p", blocks(&s.points, vec3));
-    if let Some(n) = &s.normals {
-        feed(b"n", blocks(n, vec3));
-    }
-    if let Some(g) = &s.grid {
-        let dims = [u128::from(g.rows), u128::from(g.cols)].to_vec();
-        feed(b"g", dims);
-        feed(b"r", blocks(&g.row, u32le));
-        feed(b"c", blocks(&g.col, u32le));
     }
     format!("{:032x}", h.digest128())
 }
@@ -1275,7 +1280,7 @@ mod tests {
     #[test]
     fn data_hash_is_that_of_the_values_little_endian_bytes() {
         // The hash recorded in work directories: each block of 2^16 values hashed from their
-        // little-endian bytes, the block hashes fed in order after a tag and their count.
+        // little-endian bytes, the block hashes combined by `digest`.
         fn reference(s: &Scan) -> String {
             fn blocks(bytes: &[u8], per: usize) -> Vec<u128> {
                 bytes
@@ -1297,24 +1302,16 @@ mod tests {
                 let v: Vec<u8> = xs.iter().flat_map(|x| x.to_le_bytes()).collect();
                 blocks(&v, 4)
             };
-            let mut h = xxhash_rust::xxh3::Xxh3::new();
-            let mut feed = |tag: &[u8], d: Vec<u128>| {
-                h.update(tag);
-                h.update(&(d.len() as u64).to_le_bytes());
-                for x in d {
-                    h.update(&x.to_le_bytes());
-                }
-            };
-            feed(b"p", vec3(&s.points));
+            let mut parts = vec![(&b"p"[..], vec3(&s.points))];
             if let Some(n) = &s.normals {
-                feed(b"n", vec3(n));
+                parts.push((b"n", vec3(n)));
             }
             if let Some(g) = &s.grid {
-                feed(b"g", vec![u128::from(g.rows), u128::from(g.cols)]);
-                feed(b"r", u32s(&g.row));
-                feed(b"c", u32s(&g.col));
+                parts.push((b"g", vec![u128::from(g.rows), u128::from(g.cols)]));
+                parts.push((b"r", u32s(&g.row)));
+                parts.push((b"c", u32s(&g.col)));
             }
-            format!("{:032x}", h.digest128())
+            digest(parts)
         }
         // Sizes around the block boundary.
         for n in [0usize, 1, 65_535, 65_536, 65_537, 200_000] {

@@ -551,13 +551,8 @@ mod tests {
 
     #[test]
     fn bracketed_selection_agrees_with_a_sort() {
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = crate::ssao::rng::Rng::new(11, 0);
+        let mut next = || rng.next_u64();
         for n in 1..=SCRATCH {
             for rep in 0..8 {
                 // Squared distances as a window holds them: ties (few distinct values on some
