@@ -136,14 +136,13 @@ impl Cells {
         let base = base_level(radii, diag);
         let sigma = ROUNDING_PER_EXTENT * 3f64.sqrt() * f64::from(ext);
         let (cells, runs) = world_cells_and_runs(points, pose, base);
-        // Each point's cell, one search per run of points in the same cell.
+        // Each point's cell, from the runs of points in the same cell.
         let mut of = vec![0u32; n];
         of.par_chunks_mut(RUN_CHUNK)
             .zip(runs.par_iter())
             .for_each(|(o, runs)| {
-                for (r, &(start, k)) in runs.iter().enumerate() {
+                for (r, &(start, c)) in runs.iter().enumerate() {
                     let end = runs.get(r + 1).map_or(o.len(), |x| x.0 as usize);
-                    let c = cells.binary_search(&k).unwrap_or(0) as u32;
                     o[start as usize..end].fill(c);
                 }
             });
