@@ -284,9 +284,9 @@ pub struct ViewCells {
     unbounded: bool,
     /// Per level from the base up: cells whose own level is at most this one, coarsened to it
     /// and grown by one cell.
-    upto: Vec<KeySet>,
+    upto: Vec<KeyFilter>,
     /// Per level from the base up: cells whose own level is exactly this one, grown likewise.
-    exact: Vec<KeySet>,
+    exact: Vec<KeyFilter>,
     /// Cells with a radius above the sets' levels: per level (absolute, ascending), the cells
     /// grown by as many cells as their radius needs there.
     wide: Vec<(i32, KeySet)>,
@@ -356,7 +356,7 @@ impl ViewCells {
             below.dedup();
             lists.push((below.clone(), if d > 0 { own } else { Vec::new() }));
         }
-        let (upto, exact): (Vec<KeySet>, Vec<KeySet>) = lists
+        let (upto, exact): (Vec<KeyFilter>, Vec<KeyFilter>) = lists
             .par_iter()
             .map(|(upto, own)| rayon::join(|| grown(upto), || grown(own)))
             .unzip();
@@ -388,9 +388,13 @@ impl ViewCells {
 
     /// Heap bytes held (for the memory budget).
     pub fn heap_bytes(&self) -> u64 {
-        let set = |s: &KeySet| s.capacity() as u64 * 9;
-        let sets: u64 = self.upto.iter().chain(&self.exact).map(set).sum();
-        let wide: u64 = self.wide.iter().map(|w| set(&w.1)).sum();
+        let sets: u64 = self
+            .upto
+            .iter()
+            .chain(&self.exact)
+            .map(KeyFilter::heap_bytes)
+            .sum();
+        let wide: u64 = self.wide.iter().map(|w| w.1.capacity() as u64 * 9).sum();
         sets + wide + 32 * self.all.capacity() as u64
     }
 
@@ -446,10 +450,10 @@ impl ViewCells {
                 }
                 let q = own.max(self.base);
                 let at = |l: i32| key(coarsen(c, l - tc.base));
-                self.upto[(q - self.base) as usize].contains(&at(q))
+                self.upto[(q - self.base) as usize].contains(at(q))
                     || (q + 1..=top).any(|l| {
                         let s = &self.exact[(l - self.base) as usize];
-                        !s.is_empty() && s.contains(&at(l))
+                        !s.is_empty() && s.contains(at(l))
                     })
                     || self.wide.iter().any(|(l, s)| {
                         // A target coarser than the level cannot be refined to it: kept.
@@ -476,12 +480,96 @@ fn grow_into(set: &mut KeySet, k: [i64; 3], n: i64) {
 }
 
 /// The keys of `cells` and of their 26 neighbours.
-fn grown(cells: &[[i64; 3]]) -> KeySet {
-    let mut s = KeySet::with_capacity_and_hasher(cells.len() * 8, Default::default());
+fn grown(cells: &[[i64; 3]]) -> KeyFilter {
+    let mut s = KeyFilter::for_inserts(cells.len() * 27);
     for &k in cells {
-        grow_into(&mut s, k, 1);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    s.insert(key([
+                        k[0].wrapping_add(dx),
+                        k[1].wrapping_add(dy),
+                        k[2].wrapping_add(dz),
+                    ]));
+                }
+            }
+        }
     }
     s
+}
+
+/// A set of cell keys that may say yes to a key it does not hold, never no to one it holds:
+/// a Bloom filter with a key's three bits in one 64-bit word. Per lookup one word of a
+/// filter a few bits per insert in size, where a hash set of the same keys reads a control
+/// group and a slot of a table ten times larger: the view's sets stay in cache while a
+/// target's cells are tested. A false yes keeps a cell the test could have left out (the
+/// merge then finds nothing there), as a shared key does.
+#[derive(Debug, Clone, Default)]
+struct KeyFilter {
+    words: Vec<u64>,
+    inserted: usize,
+}
+
+impl KeyFilter {
+    /// Fewest words of a filter that holds anything: a handful of cells still gets a few
+    /// bits set per word.
+    const MIN_WORDS: usize = 1024;
+
+    /// An empty filter for up to about `n` inserts (repeats included) at two to four bits
+    /// each: a grown surface repeats each key several times, so a distinct key has ten or
+    /// more bits and false yeses stay around a percent.
+    fn for_inserts(n: usize) -> KeyFilter {
+        let words = if n == 0 {
+            0
+        } else {
+            (n.saturating_mul(2) / 64)
+                .max(Self::MIN_WORDS)
+                .checked_next_power_of_two()
+                .unwrap_or(1 << 40)
+        };
+        KeyFilter {
+            words: vec![0; words],
+            inserted: 0,
+        }
+    }
+
+    /// The word of `k` and its three bits (keys are mixed by [`key`]: the low bits pick the
+    /// word, the top ones the bits).
+    #[inline]
+    fn slot(&self, k: u64) -> (usize, u64) {
+        let w = (k as usize) & (self.words.len().wrapping_sub(1));
+        let h = k >> 46;
+        (
+            w,
+            1 << (h & 63) | 1 << ((h >> 6) & 63) | 1 << ((h >> 12) & 63),
+        )
+    }
+
+    fn insert(&mut self, k: u64) {
+        if self.words.is_empty() {
+            *self = KeyFilter::for_inserts(Self::MIN_WORDS);
+        }
+        let (w, bits) = self.slot(k);
+        self.words[w] |= bits;
+        self.inserted += 1;
+    }
+
+    #[inline]
+    fn contains(&self, k: u64) -> bool {
+        if self.words.is_empty() {
+            return false;
+        }
+        let (w, bits) = self.slot(k);
+        self.words[w] & bits == bits
+    }
+
+    fn is_empty(&self) -> bool {
+        self.inserted == 0
+    }
+
+    fn heap_bytes(&self) -> u64 {
+        8 * self.words.capacity() as u64
+    }
 }
 
 #[cfg(test)]
@@ -538,6 +626,30 @@ mod tests {
             let v = view(&fill, &[r_v, 0.005, 0.02], pose);
             assert!(kept(&t, &v), "case {k}: d {d}, r_t {r_t}, r_v {r_v}");
         }
+    }
+
+    #[test]
+    fn key_filter_holds_every_key_and_rarely_others() {
+        // A grown wall of cells, as `grown` builds it, and cells a little off it.
+        let wall: Vec<[i64; 3]> = (0..200)
+            .flat_map(|x| (0..150).map(move |z| [x, 7, z]))
+            .collect();
+        let f = grown(&wall);
+        for &[x, y, z] in &wall {
+            for d in -1..=1 {
+                assert!(f.contains(key([x + d, y + d, z - d])), "{x} {y} {z}");
+            }
+        }
+        let off = (0..200)
+            .flat_map(|x| (0..150).map(move |z| [x, 7 + 2 + (x + z) % 5, z]))
+            .filter(|&k| !f.contains(key(k)))
+            .count();
+        assert!(
+            off >= 30_000 * 98 / 100,
+            "{off} of 30000 cells off the wall left out"
+        );
+        assert!(KeyFilter::default().is_empty() && !KeyFilter::default().contains(key([0; 3])));
+        assert!(grown(&[]).is_empty() && !grown(&[]).contains(key([0; 3])));
     }
 
     #[test]
