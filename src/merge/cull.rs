@@ -272,10 +272,10 @@ impl PointCells {
 
 /// What the test needs of one view: the dilated cell sets of its G-buffer points.
 ///
-/// Cells whose radius fits a cube at most `SET_LEVELS` levels above the base go into
-/// hashed sets grown by one cell. The few with a larger radius (points at grazing angles or
-/// on silhouettes, whose neighbours lie on another surface) would reach far past their radius
-/// that way, so they are grown by several cells at a finer level instead.
+/// Cells whose radius fits a cube at most `SET_LEVELS` levels above the base go into sets
+/// of hashed keys (Bloom filters) grown by one cell. The few with a larger radius (points at
+/// grazing angles or on silhouettes, whose neighbours lie on another surface) would reach far
+/// past their radius that way, so they are grown by several cells at a finer level instead.
 #[derive(Debug, Clone, Default)]
 pub struct ViewCells {
     base: i32,
@@ -294,7 +294,7 @@ pub struct ViewCells {
     all: Vec<([i64; 3], f32)>,
 }
 
-/// Levels above the base that the hashed sets cover.
+/// Levels above the base that the sets of hashed keys cover.
 const SET_LEVELS: i32 = 2;
 /// How many levels finer than their own the cells with a large radius are grown at.
 const WIDE_FINER: i32 = 3;
