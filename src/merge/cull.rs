@@ -290,8 +290,11 @@ pub struct ViewCells {
     /// Cells with a radius above the sets' levels: per level (absolute, ascending), the cells
     /// grown by as many cells as their radius needs there.
     wide: Vec<(i32, KeySet)>,
-    /// Every cell at the base level with its radius (for target cells with a large radius).
+    /// Every cell at the base level with its radius (for target cells with a large radius),
+    /// sorted by cell.
     all: Vec<([i64; 3], f32)>,
+    /// The radii of `all` in decreasing order, with each one's place in `all`.
+    by_radius: Vec<(f32, u32)>,
 }
 
 /// Levels above the base that the sets of hashed keys cover.
@@ -361,6 +364,14 @@ impl ViewCells {
             .map(|(upto, own)| rayon::join(|| grown(upto), || grown(own)))
             .unzip();
         large.sort_unstable_by_key(|e| e.0);
+        // Radii are finite here (a NaN or infinite one made the view unbounded above).
+        let mut by_radius: Vec<(f32, u32)> = c
+            .rmax
+            .iter()
+            .enumerate()
+            .map(|(k, &r)| (r, k as u32))
+            .collect();
+        by_radius.par_sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         let mut wide: Vec<(i32, KeySet)> = Vec::new();
         for (at, k, n) in large {
             if wide.last().is_none_or(|w| w.0 != at) {
@@ -383,6 +394,7 @@ impl ViewCells {
                 .copied()
                 .zip(c.rmax.iter().copied())
                 .collect(),
+            by_radius,
         }
     }
 
@@ -395,12 +407,18 @@ impl ViewCells {
             .map(KeyFilter::heap_bytes)
             .sum();
         let wide: u64 = self.wide.iter().map(|w| w.1.capacity() as u64 * 9).sum();
-        sets + wide + 32 * self.all.capacity() as u64
+        sets + wide + 32 * self.all.capacity() as u64 + 8 * self.by_radius.capacity() as u64
     }
 
     /// For each cell of `t`, whether its points may find a partner in this view; `None` when
     /// the test cannot tell (every point is kept).
     pub fn relevant(&self, t: &PointCells) -> Option<Vec<bool>> {
+        self.relevant_with(t, true)
+    }
+
+    /// [`ViewCells::relevant`], testing a target cell of large radius against the view cells
+    /// that can be near it (`indexed`) or against every one (the tests' reference).
+    fn relevant_with(&self, t: &PointCells, indexed: bool) -> Option<Vec<bool>> {
         let tc = &t.cells;
         if self.unbounded || self.upto.is_empty() {
             return None;
@@ -446,7 +464,29 @@ impl ViewCells {
                     return true;
                 };
                 if own > top {
-                    return self.all.iter().any(|&(b, rb)| near(c, r, b, rb));
+                    if !indexed {
+                        return self.all.iter().any(|&(b, rb)| near(c, r, b, rb));
+                    }
+                    // The view cells of a larger radius, wherever they are…
+                    let larger = self.by_radius.iter().take_while(|e| e.0 > r);
+                    if larger
+                        .clone()
+                        .any(|&(rb, k)| near(c, r, self.all[k as usize].0, rb))
+                    {
+                        return true;
+                    }
+                    // …and the others where this cell's own reach gets along x (first in
+                    // the cells' order), a cell wider on each side for rounding.
+                    let reach =
+                        2.0 * f64::from(r) * (1.0 + 1e-5) + slack.max(side_v * ROUNDING_SHARE);
+                    let a0 = c[0] as f64 * side_t;
+                    let lo = ((a0 - side_v - reach) / side_v).floor() as i64 - 1;
+                    let hi = ((a0 + side_t + reach) / side_v).ceil() as i64 + 1;
+                    let from = self.all.partition_point(|e| e.0[0] < lo);
+                    return self.all[from..]
+                        .iter()
+                        .take_while(|e| e.0[0] <= hi)
+                        .any(|&(b, rb)| rb <= r && near(c, r, b, rb));
                 }
                 let q = own.max(self.base);
                 let at = |l: i32| key(coarsen(c, l - tc.base));
@@ -626,6 +666,63 @@ mod tests {
             let v = view(&fill, &[r_v, 0.005, 0.02], pose);
             assert!(kept(&t, &v), "case {k}: d {d}, r_t {r_t}, r_v {r_v}");
         }
+    }
+
+    #[test]
+    fn large_target_cells_find_the_view_cells_every_cell_would() {
+        let mut rng = crate::ssao::rng::Rng::new(5, 0);
+        let mut large = 0usize;
+        for case in 0..60 {
+            // Surfaces of small cells with a scatter of large radii on both sides, so that
+            // target cells above the sets meet view cells of larger and smaller radius.
+            let pts = |rng: &mut crate::ssao::rng::Rng, n: usize, r_big: f32| {
+                let mut p = Vec::with_capacity(n);
+                let mut r = Vec::with_capacity(n);
+                for k in 0..n {
+                    p.push(Vec3::new(
+                        rng.next_f32() * 8.0 - 4.0,
+                        rng.next_f32() * 6.0 - 3.0,
+                        rng.next_f32() * 0.2 + (k % 3) as f32,
+                    ));
+                    let big = rng.next_u64() % 8 == 0;
+                    r.push(if big {
+                        r_big * (0.2 + rng.next_f32())
+                    } else {
+                        0.004
+                    });
+                }
+                (p, r)
+            };
+            let origin = if case % 2 == 0 {
+                DVec3::ZERO
+            } else {
+                DVec3::new(651_234.5, 5_432_109.25, 280.0)
+            };
+            let pose = DMat4::from_translation(origin);
+            // Dense surfaces, or a few points each, where a large cell's answer often rests
+            // on one view cell.
+            let n = if case % 3 == 0 { 3000 } else { 20 + 10 * case };
+            let (tp, tr) = pts(&mut rng, n, 0.05 + 0.1 * (case % 5) as f32);
+            let (mut vp, mut vr) = pts(&mut rng, n, 0.05 + 0.08 * (case % 7) as f32);
+            if case % 4 == 1 {
+                // The same points: every cell meets its twin of equal radius.
+                (vp, vr) = (tp.clone(), tr.clone());
+            }
+            let t = PointCells::new(&tp, &tr, pose);
+            let v = view(&vp, &vr, pose);
+            let top = v.base + SET_LEVELS;
+            large += t
+                .levels
+                .iter()
+                .filter(|l| l.is_some_and(|l| l > top))
+                .count();
+            assert_eq!(
+                v.relevant_with(&t, true),
+                v.relevant_with(&t, false),
+                "case {case}"
+            );
+        }
+        assert!(large > 1000, "{large} large target cells");
     }
 
     #[test]
