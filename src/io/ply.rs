@@ -450,16 +450,15 @@ impl PlyFile {
         let build = |first: usize, chunk: &[u8]| -> Vec<u8> {
             let n = chunk.len() / stride;
             let mut out = vec![0u8; n * out_stride];
-            for (r, (src, dst)) in chunk
+            for (src, dst) in chunk
                 .chunks_exact(stride)
                 .zip(out.chunks_exact_mut(out_stride))
-                .enumerate()
             {
                 dst[..stride].copy_from_slice(src);
-                for &(off, ty, vals) in &fields {
-                    let e = ty.encode(vals[first + r]);
-                    dst[off..off + e.len].copy_from_slice(e.as_slice());
-                }
+            }
+            // A column at a time, so that each loop encodes one type.
+            for &(off, ty, vals) in &fields {
+                put_column(&mut out, out_stride, off, ty, &vals[first..first + n]);
             }
             out
         };
@@ -916,6 +915,29 @@ impl ScalarType {
             ScalarType::F64 => e.buf.copy_from_slice(&v.to_le_bytes()),
         }
         e
+    }
+}
+
+/// Writes `vals` encoded as `ty` at offset `off` of consecutive rows of `stride` bytes, the
+/// same bytes as [`ScalarType::encode`] value by value, with the type fixed in each loop.
+fn put_column(rows: &mut [u8], stride: usize, off: usize, ty: ScalarType, vals: &[f64]) {
+    #[inline(always)]
+    fn fill<const N: usize>(rows: &mut [u8], stride: usize, off: usize, t: ScalarType, v: &[f64]) {
+        for (row, &v) in rows.chunks_exact_mut(stride).zip(v) {
+            let e = t.encode(v);
+            row[off..off + N].copy_from_slice(&e.buf[..N]);
+        }
+    }
+    use ScalarType as T;
+    match ty {
+        T::I8 => fill::<1>(rows, stride, off, T::I8, vals),
+        T::U8 => fill::<1>(rows, stride, off, T::U8, vals),
+        T::I16 => fill::<2>(rows, stride, off, T::I16, vals),
+        T::U16 => fill::<2>(rows, stride, off, T::U16, vals),
+        T::I32 => fill::<4>(rows, stride, off, T::I32, vals),
+        T::U32 => fill::<4>(rows, stride, off, T::U32, vals),
+        T::F32 => fill::<4>(rows, stride, off, T::F32, vals),
+        T::F64 => fill::<8>(rows, stride, off, T::F64, vals),
     }
 }
 
@@ -2297,6 +2319,71 @@ mod tests {
             back.scalar_column("vertex", "x").unwrap(),
             Vec::<f64>::new()
         );
+    }
+
+    #[test]
+    fn columns_written_row_by_row_equal_the_general_path() {
+        use ScalarType as T;
+        let types = [T::I8, T::U8, T::I16, T::U16, T::I32, T::U32, T::F32, T::F64];
+        // Past one batch of rows, so that later batches start at their own offset.
+        let n = 70_000;
+        let special = [
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            2.5,
+            -2.5,
+            0.499_999_9,
+            -0.0,
+            300.0,
+            65_535.5,
+            -1e12,
+            1e12,
+            4_294_967_295.7,
+        ];
+        let value = |k: usize, c: usize| {
+            if k % 7 == 0 {
+                special[(k / 7 + c) % special.len()]
+            } else {
+                (k as f64 * 0.37 + c as f64).sin() * 10f64.powi((k % 11) as i32 - 2)
+            }
+        };
+        let xyz: Vec<f64> = (0..n).map(|k| k as f64 * 0.01).collect();
+        let existing: Vec<Vec<f64>> = (0..types.len())
+            .map(|c| (0..n).map(|k| (k % 100) as f64 + c as f64).collect())
+            .collect();
+        let names: Vec<String> = (0..types.len()).map(|c| format!("p{c}")).collect();
+        let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![
+            ("x", T::F32, &xyz),
+            ("y", T::F32, &xyz),
+            ("z", T::F32, &xyz),
+        ];
+        for (c, &t) in types.iter().enumerate() {
+            cols.push((&names[c], t, &existing[c]));
+        }
+        let ply = PlyFile::from_vertex_columns(&cols, &[]).unwrap();
+        // Each existing column overwritten (keeping its type) and one new of each type.
+        let new_vals: Vec<Vec<f64>> = (0..2 * types.len())
+            .map(|c| (0..n).map(|k| value(k, c)).collect())
+            .collect();
+        let new_names: Vec<String> = (0..types.len()).map(|c| format!("q{c}")).collect();
+        let mut put: Vec<(&str, ScalarType, &[f64])> = Vec::new();
+        for (c, &t) in types.iter().enumerate() {
+            put.push((&names[c], T::F64, &new_vals[c]));
+            put.push((&new_names[c], t, &new_vals[types.len() + c]));
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let (fast, general) = (dir.path().join("fast.ply"), dir.path().join("general.ply"));
+        let comment = ["written".to_string()];
+        ply.write_path_with_columns(&fast, "vertex", &put, &comment)
+            .unwrap();
+        let mut g = ply.clone();
+        for &(name, t, vals) in &put {
+            g.set_scalar_column("vertex", name, t, vals).unwrap();
+        }
+        g.header.comments.extend(comment.iter().cloned());
+        g.write_path(&general).unwrap();
+        assert!(std::fs::read(&fast).unwrap() == std::fs::read(&general).unwrap());
     }
 
     #[test]
