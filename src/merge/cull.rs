@@ -378,7 +378,9 @@ impl ViewCells {
                 wide.push((at, KeySet::default()));
             }
             if let Some((_, set)) = wide.last_mut() {
-                grow_into(set, k, n);
+                grow_into(k, n, |h| {
+                    set.insert(h);
+                });
             }
         }
         ViewCells {
@@ -504,12 +506,12 @@ impl ViewCells {
     }
 }
 
-/// Adds the keys of `k` grown by `n` cells in every direction.
-fn grow_into(set: &mut KeySet, k: [i64; 3], n: i64) {
+/// Hands `insert` the keys of `k` grown by `n` cells in every direction.
+fn grow_into(k: [i64; 3], n: i64, mut insert: impl FnMut(u64)) {
     for dx in -n..=n {
         for dy in -n..=n {
             for dz in -n..=n {
-                set.insert(key([
+                insert(key([
                     k[0].wrapping_add(dx),
                     k[1].wrapping_add(dy),
                     k[2].wrapping_add(dz),
@@ -523,17 +525,7 @@ fn grow_into(set: &mut KeySet, k: [i64; 3], n: i64) {
 fn grown(cells: &[[i64; 3]]) -> KeyFilter {
     let mut s = KeyFilter::for_inserts(cells.len() * 27);
     for &k in cells {
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    s.insert(key([
-                        k[0].wrapping_add(dx),
-                        k[1].wrapping_add(dy),
-                        k[2].wrapping_add(dz),
-                    ]));
-                }
-            }
-        }
+        grow_into(k, 1, |h| s.insert(h));
     }
     s
 }

@@ -153,12 +153,41 @@ fn packed_cells_and_runs(
         }
         Some(key)
     };
-    let keyed: Vec<Option<Vec<(u32, u64)>>> = points
+    let (keys, runs) = sorted_keys_and_runs(points, |p| pack(world_cell(p, pose, inv)), with_runs)?;
+    let cells = keys
+        .par_iter()
+        .map(|&k| {
+            let axis = |a: u32| origin[a as usize] + ((k >> (KEY_BITS * (2 - a))) & mask) as i64;
+            [axis(0), axis(1), axis(2)]
+        })
+        .collect();
+    Some((cells, runs))
+}
+
+/// [`world_cells_and_runs`] on the cells themselves, for boxes too large for a packed key.
+fn cells_and_runs(
+    points: &[glam::Vec3],
+    pose: &DMat4,
+    inv: f64,
+    with_runs: bool,
+) -> (Vec<[i64; 3]>, Vec<Runs>) {
+    sorted_keys_and_runs(points, |p| Some(world_cell(p, pose, inv)), with_runs).unwrap_or_default()
+}
+
+/// The distinct keys `key` gives the points, sorted, and each chunk's runs of consecutive
+/// points with one key (with the key's index; left empty unless `with_runs`). `None` as soon
+/// as `key` gives `None` for a point.
+fn sorted_keys_and_runs<K: Ord + Copy + Send + Sync>(
+    points: &[glam::Vec3],
+    key: impl Fn(glam::Vec3) -> Option<K> + Sync,
+    with_runs: bool,
+) -> Option<(Vec<K>, Vec<Runs>)> {
+    let keyed: Vec<Option<Vec<(u32, K)>>> = points
         .par_chunks(RUN_CHUNK)
         .map(|c| {
-            let mut out: Vec<(u32, u64)> = Vec::new();
+            let mut out: Vec<(u32, K)> = Vec::new();
             for (o, p) in c.iter().enumerate() {
-                let k = pack(world_cell(*p, pose, inv))?;
+                let k = key(*p)?;
                 if out.last().map(|r| r.1) != Some(k) {
                     out.push((o as u32, k));
                 }
@@ -166,12 +195,12 @@ fn packed_cells_and_runs(
             Some(out)
         })
         .collect();
-    let keyed: Vec<Vec<(u32, u64)>> = keyed.into_iter().collect::<Option<_>>()?;
+    let keyed: Vec<Vec<(u32, K)>> = keyed.into_iter().collect::<Option<_>>()?;
     // Dropping repeats within a chunk keeps the sort small.
-    let mut keys: Vec<u64> = keyed
+    let mut keys: Vec<K> = keyed
         .par_iter()
         .flat_map_iter(|r| {
-            let mut k: Vec<u64> = r.iter().map(|r| r.1).collect();
+            let mut k: Vec<K> = r.iter().map(|r| r.1).collect();
             k.sort_unstable();
             k.dedup();
             k
@@ -191,60 +220,7 @@ fn packed_cells_and_runs(
     } else {
         Vec::new()
     };
-    let cells = keys
-        .par_iter()
-        .map(|&k| {
-            let axis = |a: u32| origin[a as usize] + ((k >> (KEY_BITS * (2 - a))) & mask) as i64;
-            [axis(0), axis(1), axis(2)]
-        })
-        .collect();
-    Some((cells, runs))
-}
-
-/// [`world_cells_and_runs`] on the cells themselves, for boxes too large for a packed key.
-fn cells_and_runs(
-    points: &[glam::Vec3],
-    pose: &DMat4,
-    inv: f64,
-    with_runs: bool,
-) -> (Vec<[i64; 3]>, Vec<Runs>) {
-    let keyed: Vec<Vec<(u32, [i64; 3])>> = points
-        .par_chunks(RUN_CHUNK)
-        .map(|c| {
-            let mut out: Vec<(u32, [i64; 3])> = Vec::new();
-            for (o, p) in c.iter().enumerate() {
-                let k = world_cell(*p, pose, inv);
-                if out.last().map(|r| r.1) != Some(k) {
-                    out.push((o as u32, k));
-                }
-            }
-            out
-        })
-        .collect();
-    let mut cells: Vec<[i64; 3]> = keyed
-        .par_iter()
-        .flat_map_iter(|r| {
-            let mut k: Vec<[i64; 3]> = r.iter().map(|r| r.1).collect();
-            k.sort_unstable();
-            k.dedup();
-            k
-        })
-        .collect();
-    cells.par_sort_unstable();
-    cells.dedup();
-    let runs = if with_runs {
-        keyed
-            .par_iter()
-            .map(|r| {
-                r.iter()
-                    .map(|&(o, k)| (o, cells.binary_search(&k).unwrap_or(0) as u32))
-                    .collect()
-            })
-            .collect()
-    } else {
-        Vec::new()
-    };
-    (cells, runs)
+    Some((keys, runs))
 }
 
 /// Pair tests of a set of scans for one reach: whether some point of scan `i` may lie within
