@@ -272,40 +272,52 @@ fn digest(parts: Vec<(&[u8], Vec<u128>)>) -> String {
     format!("{:032x}", h.digest128())
 }
 
-/// A view's products being written (on another thread when prepare overlaps writing with
-/// computing), and the view.
+/// What saving a view gives: its manifest entry (committed on disk), and the view.
+type Saved = (Result<products::manifest::Entry>, PreparedView);
+
+/// A view's products, summary and manifest entry being written (on another thread when
+/// prepare overlaps writing with computing), and the view.
 enum Saving<'s> {
-    Running(std::thread::ScopedJoinHandle<'s, (Result<products::ProductFiles>, PreparedView)>),
-    Done(Box<(Result<products::ProductFiles>, PreparedView)>),
+    Running(std::thread::ScopedJoinHandle<'s, Saved>),
+    Done(Box<Saved>),
 }
 
-/// A prepared view whose products are not committed yet.
+/// A prepared view whose commit is not known to be complete yet.
 struct Pending<'s> {
     /// The scan's index in the catalog.
     index: usize,
     saving: Saving<'s>,
-    key: String,
-    rec: InputRecord,
-    params: serde_json::Value,
-    sum: Summary,
 }
 
-/// Waits for a view's products, then writes its summary and, last, its manifest entry.
-/// Returns the view.
-fn commit(p: Pending<'_>, manifest: &mut Manifest, work_dir: &Path) -> Result<PreparedView> {
-    let (files, view) = match p.saving {
+/// Writes a view's products, then its summary and, last, its manifest entry (the commit
+/// point), in that order. Run off the main thread when prepare overlaps writing with computing:
+/// the summary's and the entry's syncs took about 0.1 s a scan, with a core idle.
+fn save_and_record(
+    work_dir: &Path,
+    key: &str,
+    rec: &InputRecord,
+    params: &serde_json::Value,
+    sum: &Summary,
+    v: &PreparedView,
+) -> Result<products::manifest::Entry> {
+    let files = products::save_view(work_dir, key, v)?;
+    let json = serde_json::to_vec(sum)
+        .map_err(|e| Error::Param(format!("cannot encode a summary: {e}")))?;
+    crate::io::atomic::write_atomic(&summary_path(work_dir, key), |w| {
+        std::io::Write::write_all(w, &json)
+    })?;
+    products::manifest::write_record(work_dir, key, std::slice::from_ref(rec), params, &files)
+}
+
+/// Waits for a view's commit and takes note of its entry. Returns the view.
+fn commit(p: Pending<'_>, manifest: &mut Manifest) -> Result<PreparedView> {
+    let (entry, view) = match p.saving {
         Saving::Running(h) => h.join().map_err(|_| {
             Error::Param("writing a view's products failed (internal error)".into())
         })?,
         Saving::Done(r) => *r,
     };
-    let files = files?;
-    let json = serde_json::to_vec(&p.sum)
-        .map_err(|e| Error::Param(format!("cannot encode a summary: {e}")))?;
-    crate::io::atomic::write_atomic(&summary_path(work_dir, &p.key), |w| {
-        std::io::Write::write_all(w, &json)
-    })?;
-    manifest.record(&p.key, std::slice::from_ref(&p.rec), &p.params, &files)?;
+    manifest.insert(entry?);
     Ok(view)
 }
 
@@ -938,32 +950,29 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                     normals: v.normals_note.clone(),
                     times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
                 };
-                // The previous view's products are committed before this one's are written.
+                // The previous view is committed before this one's products are written.
                 if let Some(p) = pending.take() {
-                    hand_over(p.index, commit(p, &mut manifest, &work_dir)?);
+                    hand_over(p.index, commit(p, &mut manifest)?);
                 }
-                let key = cat[i].key.clone();
-                let wd = work_dir.clone();
-                let save = move || (products::save_view(&wd, &key, &v), v);
+                let (key, wd, rec, prm_i) = (
+                    cat[i].key.clone(),
+                    work_dir.clone(),
+                    rec.clone(),
+                    params(&cat[i]),
+                );
+                let save = move || (save_and_record(&wd, &key, &rec, &prm_i, &sum, &v), v);
                 let saving = if overlap {
                     Saving::Running(sc.spawn(save))
                 } else {
                     Saving::Done(Box::new(save()))
                 };
-                pending = Some(Pending {
-                    index: i,
-                    saving,
-                    key: cat[i].key.clone(),
-                    rec: rec.clone(),
-                    params: params(&cat[i]),
-                    sum,
-                });
+                pending = Some(Pending { index: i, saving });
                 out.prepared.0 += 1;
                 obs.advance(s.len() as u64);
             }
         }
         if let Some(p) = pending.take() {
-            hand_over(p.index, commit(p, &mut manifest, &work_dir)?);
+            hand_over(p.index, commit(p, &mut manifest)?);
         }
         Ok(())
     })?;

@@ -356,32 +356,14 @@ impl Manifest {
         params: &Value,
         files: &ProductFiles,
     ) -> Result<()> {
-        super::check_key(key)?;
-        for f in files.files() {
-            let p = self.dir.join(&f.name);
-            let m = std::fs::metadata(&p).map_err(|e| Error::io(&p, e))?;
-            if m.len() != f.size {
-                return Err(Error::format(
-                    &p,
-                    format!("{} bytes on disk, {} expected", m.len(), f.size),
-                ));
-            }
-        }
-        let entry = Entry {
-            format: FORMAT,
-            key: key.to_string(),
-            mvao_version: MVAO_VERSION.to_string(),
-            recorded: FileTime::now(),
-            params_hash: params_hash(params),
-            params: params.clone(),
-            inputs: inputs.to_vec(),
-            products: files.clone(),
-        };
-        write_entry(&self.dir, &entry)?;
-        let keep = [files.maps.name.as_str(), files.points.name.as_str()];
-        super::remove_old_products(&self.dir, key, &keep);
-        self.entries.insert(key.to_string(), entry);
+        let entry = write_record(&self.dir, key, inputs, params, files)?;
+        self.insert(entry);
         Ok(())
+    }
+
+    /// Takes note of an entry [`write_record`] committed to this manifest's directory.
+    pub fn insert(&mut self, entry: Entry) {
+        self.entries.insert(entry.key.clone(), entry);
     }
 
     /// Forgets `key`: removes its entry (first, so no half state is ever fresh) and products.
@@ -437,6 +419,43 @@ pub fn write_entry(dir: &Path, entry: &Entry) -> Result<()> {
     let json = serde_json::to_vec_pretty(&file)
         .map_err(|e| Error::format(&path, format!("cannot encode the entry: {e}")))?;
     write_atomic(&path, |w| w.write_all(&json))
+}
+
+/// The file work of [`Manifest::record`] in work directory `dir`, for a thread that does not
+/// hold the manifest: checks the products' sizes, writes the entry (the commit point), removes
+/// the key's older products, and returns the entry for [`Manifest::insert`].
+pub fn write_record(
+    dir: &Path,
+    key: &str,
+    inputs: &[InputRecord],
+    params: &Value,
+    files: &ProductFiles,
+) -> Result<Entry> {
+    super::check_key(key)?;
+    for f in files.files() {
+        let p = dir.join(&f.name);
+        let m = std::fs::metadata(&p).map_err(|e| Error::io(&p, e))?;
+        if m.len() != f.size {
+            return Err(Error::format(
+                &p,
+                format!("{} bytes on disk, {} expected", m.len(), f.size),
+            ));
+        }
+    }
+    let entry = Entry {
+        format: FORMAT,
+        key: key.to_string(),
+        mvao_version: MVAO_VERSION.to_string(),
+        recorded: FileTime::now(),
+        params_hash: params_hash(params),
+        params: params.clone(),
+        inputs: inputs.to_vec(),
+        products: files.clone(),
+    };
+    write_entry(dir, &entry)?;
+    let keep = [files.maps.name.as_str(), files.points.name.as_str()];
+    super::remove_old_products(dir, key, &keep);
+    Ok(entry)
 }
 
 /// Reads and verifies one entry file.
