@@ -114,41 +114,37 @@ where
     if n == 0 || cells == 0 || grid.row.len() != n {
         return estimate(points, need_normals, toward);
     }
-    // Positions in grid order (NaN where empty) beside the point each cell holds, so that a
-    // window row is one contiguous run instead of two dependent gathers per cell: for radii
-    // alone one array per coordinate (four cells per instruction), with normals one of
-    // 16-byte positions (the candidates are packed one at a time anyway).
+    // Positions in grid order (NaN where empty), one array per coordinate (four cells per
+    // instruction), beside the point each cell holds, so that a window row is one contiguous
+    // run instead of two dependent gathers per cell.
     let mut at = crate::par::filled(cells, u32::MAX);
-    let soa = if need_normals { 0 } else { cells };
     // One allocation for the three coordinate arrays (the allocator keeps freed memory
     // when every view fits: fewer, larger blocks fragment its heap less).
-    let mut xyz = crate::par::filled(3 * soa, f32::NAN);
-    let mut gp = crate::par::filled(cells - soa, Vec3A::NAN);
+    let mut xyz = crate::par::filled(3 * cells, f32::NAN);
     {
-        let (gx, rest) = xyz.split_at_mut(soa);
-        let (gy, gz) = rest.split_at_mut(soa);
+        let (gx, rest) = xyz.split_at_mut(cells);
+        let (gy, gz) = rest.split_at_mut(cells);
         for (i, p) in points.iter().enumerate() {
             let c = grid.row[i] as usize * cols as usize + grid.col[i] as usize;
             if c < cells {
                 at[c] = i as u32;
-                if need_normals {
-                    gp[c] = Vec3A::from(*p);
-                } else {
-                    (gx[c], gy[c], gz[c]) = (p.x, p.y, p.z);
-                }
+                (gx[c], gy[c], gz[c]) = (p.x, p.y, p.z);
             }
         }
     }
-    let (gx, rest) = xyz.split_at(soa);
-    let (gy, gz) = rest.split_at(soa);
+    let (gx, rest) = xyz.split_at(cells);
+    let (gy, gz) = rest.split_at(cells);
     let k = K_RADIUS.min(n);
     let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
         // Candidates as squared-distance bits (non-negative floats order like their bits, so
-        // selection compares integers); with normals, packed over the point index
-        // `(bits << 32) | index` so that ties break the same way every time.
+        // selection compares integers; empty cells are NaN, whose bits order after every
+        // distance); with normals, packed over the point index `(bits << 32) | index` so
+        // that ties break the same way every time.
         let mut keys = [0u32; WINDOW];
+        let mut idx = [0u32; WINDOW];
         let mut cand = [0u64; WINDOW];
+        let mut copy = [0u32; WINDOW];
         let mut scratch32: Scratch<u32> = [[0; SCRATCH]; 2];
         let mut scratch: Scratch<u64> = [[0; SCRATCH]; 2];
         let mut band = Band::default();
@@ -157,13 +153,11 @@ where
             let i = ci * CHUNK + o;
             let p = Vec3A::from(points[i]);
             let (r0, c0) = (grid.row[i] as i64, grid.col[i] as i64);
-            // `m` keys, `found` of them real points: with normals the keys are the points'
-            // alone; for radii alone every cell of the window is a key, the empty ones NaN,
-            // whose bits order after every distance, so the k-th smallest is the same.
+            // `m` keys, one per cell of the window, `found` of them real points.
             let (mut m, mut found);
             let mut half = GRID_R0;
-            // Neighbouring points have nearly the same d_k: the radii-only pass gathers the
-            // keys within ±10 % (of d_k²) of the previous one while it computes them.
+            // Neighbouring points have nearly the same d_k: the pass gathers the keys within
+            // ±10 % (of d_k²) of the previous one while it computes them.
             let (lo, hi) = if guess > 0.0 {
                 (guess * 0.9, guess * 1.1)
             } else {
@@ -178,22 +172,12 @@ where
                 );
                 for rr in (r0 - half).max(0)..=(r0 + half).min(rows - 1) {
                     let run = (rr * cols) as usize + ca..=(rr * cols) as usize + cb;
+                    let (xs, ys, zs) = (&gx[run.clone()], &gy[run.clone()], &gz[run.clone()]);
+                    found += distances(xs, ys, zs, p, &mut keys[m..m + xs.len()], &mut band);
                     if need_normals {
-                        for (q, &j) in gp[run.clone()].iter().zip(&at[run]) {
-                            // In the order of `Vec3::distance_squared` (the k-d tree path's).
-                            let d = *q - p;
-                            let d2 = d.x * d.x + d.y * d.y + d.z * d.z;
-                            // Empty cells are NaN: written, then overwritten by the next one.
-                            cand[m] = (u64::from(d2.to_bits()) << 32) | u64::from(j);
-                            keys[m] = d2.to_bits();
-                            m += usize::from(j != u32::MAX);
-                        }
-                        found = m;
-                    } else {
-                        let (xs, ys, zs) = (&gx[run.clone()], &gy[run.clone()], &gz[run]);
-                        found += distances(xs, ys, zs, p, &mut keys[m..m + xs.len()], &mut band);
-                        m += xs.len();
+                        idx[m..m + xs.len()].copy_from_slice(&at[run]);
                     }
+                    m += xs.len();
                 }
                 if found >= k || half >= GRID_RMAX {
                     break;
@@ -201,29 +185,40 @@ where
                 half += 2;
             }
             let kk = k.min(found).max(1);
+            // The k-th smallest key (d_k² as bits).
+            let mut kth = 0;
             let dk = if found == 0 {
                 0.0
             } else {
-                let near = if guess <= 0.0 {
-                    None
-                } else if need_normals {
-                    kth_between(&keys[..m], kk - 1, lo, hi, &mut scratch32[0])
-                } else {
-                    band.kth(kk - 1)
-                };
-                let d2 = near.unwrap_or_else(|| {
-                    select(&mut keys[..m], kk - 1, &mut scratch32);
-                    keys[kk - 1]
+                let near = if guess <= 0.0 { None } else { band.kth(kk - 1) };
+                kth = near.unwrap_or_else(|| {
+                    // With normals the keys stay beside their indices: select in a copy.
+                    let v = if need_normals {
+                        copy[..m].copy_from_slice(&keys[..m]);
+                        &mut copy[..m]
+                    } else {
+                        &mut keys[..m]
+                    };
+                    select(v, kk - 1, &mut scratch32);
+                    v[kk - 1]
                 });
-                guess = f32::from_bits(d2);
+                guess = f32::from_bits(kth);
                 guess.sqrt()
             };
             *r = radius_from_dk(dk, k);
             if !nrm.is_empty() {
-                // The K_NORMAL nearest, ties broken by index: the smallest packed keys.
-                let kn = K_NORMAL.min(m);
-                if kn > 0 && kn < m {
-                    select(&mut cand[..m], kn - 1, &mut scratch);
+                // The K_NORMAL nearest, ties broken by index: the smallest packed keys. They
+                // are within d_k (K_NORMAL ≤ k), so only the keys up to the k-th are packed
+                // (about k of a window's 81; written either way, counted when kept).
+                let kn = K_NORMAL.min(found);
+                let mut nc = 0;
+                for (&key, &j) in keys[..m].iter().zip(&idx[..m]) {
+                    // The modulo never wraps (at most WINDOW keys); it spares a bounds check.
+                    cand[nc % WINDOW] = (u64::from(key) << 32) | u64::from(j);
+                    nc += usize::from(key <= kth);
+                }
+                if kn > 0 && kn < nc {
+                    select(&mut cand[..nc], kn - 1, &mut scratch);
                 }
                 nrm[o] = pca_normal(
                     cand[..kn]
@@ -330,24 +325,6 @@ impl Band {
     }
 }
 
-/// The `k`-th smallest of `v` (0-based) when it lies in `[lo, hi]`, else `None`: one pass
-/// counts the values below `lo` and gathers those in the bracket, which are then few.
-fn kth_between(v: &[u32], k: usize, lo: f32, hi: f32, buf: &mut [u32; SCRATCH]) -> Option<u32> {
-    // Non-negative floats order like their bits.
-    let (lo, hi) = (lo.to_bits(), hi.to_bits());
-    let (mut below, mut n) = (0usize, 0usize);
-    for &x in v {
-        // The modulo never wraps (at most SCRATCH values); it spares a bounds check.
-        buf[n % SCRATCH] = x;
-        n += usize::from(x >= lo && x <= hi);
-        below += usize::from(x < lo);
-    }
-    if below > k || below + n <= k {
-        return None;
-    }
-    Some(nth_of_few(&mut buf[..n], k - below))
-}
-
 /// The `r`-th smallest of `v` (0-based, `r < v.len()`), for a bracket's handful of values
 /// (5 to 20 on a scanner's grid): the largest value with at most `r` values below it,
 /// counted without a branch. Insertion sort, std's choice for short slices, mispredicted
@@ -364,6 +341,9 @@ fn nth_of_few(v: &mut [u32], r: usize) -> u32 {
     }
     best
 }
+
+// The normals' neighbours are found among the radius's.
+const _: () = assert!(K_NORMAL <= K_RADIUS);
 
 /// Room for the values [`select`] partitions: a whole `GRID_RMAX` window.
 const SCRATCH: usize = 256;
@@ -434,41 +414,111 @@ fn select<T: Copy + Ord>(v: &mut [T], k: usize, scratch: &mut Scratch<T>) {
 }
 
 /// The PCA normal of a neighbourhood (eigenvector of the smallest covariance eigenvalue),
-/// oriented so that `n·toward ≥ 0`. Degenerate neighbourhoods return `toward`.
+/// oriented so that `n·toward ≥ 0`. Degenerate neighbourhoods (fewer than 3 points,
+/// duplicates, collinear points) return `toward`.
 #[inline(never)]
-pub fn pca_normal(nb: impl Iterator<Item = Vec3> + Clone, toward: Vec3) -> Vec3 {
-    let (mut sum, mut cnt) = (DVec3::ZERO, 0usize);
-    for q in nb.clone() {
-        sum += q.as_dvec3();
+pub fn pca_normal(mut nb: impl Iterator<Item = Vec3>, toward: Vec3) -> Vec3 {
+    let fallback = toward.normalize_or(Vec3::Z);
+    let Some(first) = nb.next() else {
+        return fallback;
+    };
+    // One pass of sums over offsets from the first neighbour: they are no larger than the
+    // neighbourhood, so the cancellation in `Σd dᵀ − (Σd)(Σd)ᵀ/n` is f64 rounding of its
+    // size, far below the spread any scanner leaves across a surface.
+    let o = first.as_dvec3();
+    let (mut s, mut cnt) = (DVec3::ZERO, 1usize);
+    let [mut xx, mut xy, mut xz, mut yy, mut yz, mut zz] = [0.0f64; 6];
+    for q in nb {
+        let d = q.as_dvec3() - o;
+        s += d;
+        (xx, xy, xz) = (xx + d.x * d.x, xy + d.x * d.y, xz + d.x * d.z);
+        (yy, yz, zz) = (yy + d.y * d.y, yz + d.y * d.z, zz + d.z * d.z);
         cnt += 1;
     }
-    let fallback = toward.normalize_or(Vec3::Z);
     if cnt < 3 {
         return fallback;
     }
-    let c = sum / cnt as f64;
-    let mut cov = [[0.0f64; 3]; 3];
-    for q in nb {
-        let d = q.as_dvec3() - c;
-        let d = [d.x, d.y, d.z];
-        for i in 0..3 {
-            for j in 0..3 {
-                cov[i][j] += d[i] * d[j];
-            }
-        }
-    }
-    let (vals, vecs) = sym_eigen3(cov);
-    // vals ascending. Flat enough to define a plane only if the middle eigenvalue is clearly
-    // above zero (not collinear, not duplicates).
-    if !(vals[1] > 1e-12 * vals[2].max(f64::MIN_POSITIVE)) || vals[2] <= 0.0 {
+    let c = s / cnt as f64;
+    let cov = [
+        xx - s.x * c.x,
+        xy - s.x * c.y,
+        xz - s.x * c.z,
+        yy - s.y * c.y,
+        yz - s.y * c.z,
+        zz - s.z * c.z,
+    ];
+    let Some(n) = smallest_eigenvector(cov) else {
         return fallback;
-    }
-    let n = vecs[0].as_vec3().normalize_or(fallback);
+    };
+    let n = n.as_vec3().normalize_or(fallback);
     if n.dot(toward) < 0.0 {
         -n
     } else {
         n
     }
+}
+
+/// The unit eigenvector of the smallest eigenvalue `λ0` of the symmetric positive
+/// semi-definite matrix `[a00, a01, a02, a11, a12, a22]`, or `None` when the matrix is zero
+/// or not finite or its middle eigenvalue is not clearly above zero (`λ1 ≤ 10⁻¹² λ2`:
+/// duplicates or collinear points, no plane defined).
+///
+/// `λ0` is the smallest root of the characteristic polynomial, reached by Newton's method
+/// from 0 (below every root the polynomial is concave and increasing, so the iterates rise
+/// monotonically to `λ0`); the eigenvector is the longest cross product of two rows of
+/// `A − λ0 I`, which are orthogonal to it. A handful of iterations against the dozen
+/// square roots and divisions of each sweep of [`sym_eigen3`]'s Jacobi rotations.
+pub fn smallest_eigenvector(a: [f64; 6]) -> Option<DVec3> {
+    let tr = a[0] + a[3] + a[5];
+    if !(tr > 0.0 && tr.is_finite()) {
+        return None;
+    }
+    // Scaled to unit trace: the thresholds below are then relative, and no product of three
+    // entries can underflow.
+    let k = 1.0 / tr;
+    let [a00, a01, a02, a11, a12, a22] = a.map(|x| x * k);
+    // det(λI − A) = λ³ − λ² + c1·λ − det.
+    let c1 = (a00 * a11 - a01 * a01) + (a00 * a22 - a02 * a02) + (a11 * a22 - a12 * a12);
+    let det = a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02)
+        + a02 * (a01 * a12 - a11 * a02);
+    let mut l = 0.0f64;
+    // Quadratic convergence for a plane; a double or triple root converges linearly (by a
+    // factor 1/2 or 2/3 a step), within the cap.
+    for _ in 0..128 {
+        let q = ((l - 1.0) * l + c1) * l - det;
+        let dq = (3.0 * l - 2.0) * l + c1;
+        if !(dq > 0.0) {
+            break;
+        }
+        let next = l - q / dq;
+        if !(next > l) {
+            break;
+        }
+        l = next;
+    }
+    // λ1 + λ2 and λ1·λ2 from the remaining factor; λ1 from the product (no cancellation).
+    let (sum, prod) = (1.0 - l, c1 - l * (1.0 - l));
+    let l2 = 0.5 * (sum + (sum * sum - 4.0 * prod).max(0.0).sqrt());
+    if !(l2 > 0.0 && prod > 1e-12 * l2 * l2) {
+        return None;
+    }
+    let r0 = DVec3::new(a00 - l, a01, a02);
+    let r1 = DVec3::new(a01, a11 - l, a12);
+    let r2 = DVec3::new(a02, a12, a22 - l);
+    let (c01, c02, c12) = (r0.cross(r1), r0.cross(r2), r1.cross(r2));
+    let (n01, n02, n12) = (
+        c01.length_squared(),
+        c02.length_squared(),
+        c12.length_squared(),
+    );
+    let (v, len2) = if n01 >= n02 && n01 >= n12 {
+        (c01, n01)
+    } else if n02 >= n12 {
+        (c02, n02)
+    } else {
+        (c12, n12)
+    };
+    (len2 > 0.0 && len2.is_finite()).then(|| v / len2.sqrt())
 }
 
 /// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations: eigenvalues
@@ -585,8 +635,6 @@ mod tests {
                     keys.iter().copied().filter(|&b| b < 0x7f80_0000).collect();
                 truth.sort_unstable();
                 let fused = band.kth(k);
-                let scalar = kth_between(&keys, k, lo, hi, &mut [0; SCRATCH]);
-                assert_eq!(fused, scalar, "n {n} k {k}");
                 let inside = (lo.to_bits()..=hi.to_bits()).contains(&truth[k]);
                 assert_eq!(fused, inside.then_some(truth[k]), "n {n} k {k}");
                 let mut few = truth.clone();
@@ -682,6 +730,107 @@ mod tests {
         let (vals, vecs) = sym_eigen3([[2.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 5.0]]);
         assert!((vals[0] - 1.0).abs() < 1e-12 && (vals[1] - 3.0).abs() < 1e-12);
         assert!((vecs[0].x + vecs[0].y).abs() < 1e-12);
+    }
+
+    /// A symmetric matrix of eigenvalues `l` along the axes of a random rotation.
+    fn rotated(l: [f64; 3], rng: &mut crate::ssao::rng::Rng) -> ([f64; 6], [DVec3; 3]) {
+        let mut g = || 2.0 * rng.next_f32() as f64 - 1.0;
+        let r = glam::DMat3::from_quat(glam::DQuat::from_xyzw(g(), g(), g(), g()).normalize());
+        let m = r * glam::DMat3::from_diagonal(DVec3::from(l)) * r.transpose();
+        let a = [
+            m.x_axis.x, m.y_axis.x, m.z_axis.x, m.y_axis.y, m.z_axis.y, m.z_axis.z,
+        ];
+        (a, [r.x_axis, r.y_axis, r.z_axis])
+    }
+
+    /// Newton's root and the cross product give Jacobi's eigenvector of the smallest
+    /// eigenvalue, to what the gap to the next one allows, for planes, strips, close and
+    /// repeated eigenvalues at any scale and orientation; and both refuse the same
+    /// degenerate matrices.
+    #[test]
+    fn smallest_eigenvector_agrees_with_jacobi() {
+        let mut rng = crate::ssao::rng::Rng::new(5, 0);
+        let spectra = [
+            [1e-9, 0.4, 1.0],
+            [0.0, 0.3, 1.0],
+            [1e-6, 1e-4, 1.0],
+            [0.2, 0.2001, 1.0],
+            [0.1, 0.5, 0.5],
+            [1e-3, 1.0, 1.0],
+            [0.3, 0.33, 0.34],
+            [0.0, 1e-7, 1.0],
+        ];
+        for round in 0..300 {
+            for l in spectra {
+                let scale = 10f64.powi(round % 19 - 12);
+                let (a, axes) = rotated(l.map(|x| x * scale), &mut rng);
+                let got = smallest_eigenvector(a).expect("a plane is defined");
+                let full = [[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]];
+                let (_, jacobi) = sym_eigen3(full);
+                let tol = 1e-9 * l[2] / (l[1] - l[0]);
+                for want in [axes[0], jacobi[0]] {
+                    let sin = got.cross(want).length();
+                    assert!(
+                        sin <= tol,
+                        "{l:?}×{scale:e}: {got} against {want} ({sin:e})"
+                    );
+                }
+                assert!((got.length() - 1.0).abs() < 1e-12);
+            }
+        }
+        for l in [
+            [0.0, 0.0, 1.0],
+            [0.0, 1e-14, 1.0],
+            [1e-15, 1e-14, 1.0],
+            [0.0; 3],
+        ] {
+            let (a, _) = rotated(l, &mut rng);
+            assert_eq!(smallest_eigenvector(a), None, "{l:?}");
+        }
+        assert_eq!(
+            smallest_eigenvector([f64::NAN, 0.0, 0.0, 1.0, 0.0, 1.0]),
+            None
+        );
+        assert_eq!(
+            smallest_eigenvector([f64::INFINITY, 0.0, 0.0, 1.0, 0.0, 1.0]),
+            None
+        );
+    }
+
+    /// The one-pass normal against two passes (mean, then centred sums) and Jacobi, on noisy
+    /// patches of planes far from the origin.
+    #[test]
+    fn pca_normal_agrees_with_two_passes_and_jacobi() {
+        let mut rng = crate::ssao::rng::Rng::new(9, 0);
+        for round in 0..2000 {
+            let mut g = || 2.0 * rng.next_f32() - 1.0;
+            let n = Vec3::new(g(), g(), g()).normalize_or(Vec3::Z);
+            let (u, v) = n.any_orthonormal_pair();
+            let o = Vec3::new(g(), g(), g()) * 10f32.powi(round % 4);
+            let (spread, noise) = (0.05 * (1.0 + g()), 1e-4 * (1.0 + g()));
+            let pts: Vec<Vec3> = (0..K_NORMAL)
+                .map(|_| o + (u * g() + v * g()) * spread + n * (g() * noise))
+                .collect();
+            let toward = (-o).normalize_or(Vec3::Z);
+            let got = pca_normal(pts.iter().copied(), toward);
+            let mean = pts.iter().map(|p| p.as_dvec3()).sum::<DVec3>() / pts.len() as f64;
+            let mut cov = [[0.0f64; 3]; 3];
+            for p in &pts {
+                let d = (p.as_dvec3() - mean).to_array();
+                for (i, row) in cov.iter_mut().enumerate() {
+                    for (j, x) in row.iter_mut().enumerate() {
+                        *x += d[i] * d[j];
+                    }
+                }
+            }
+            let want = sym_eigen3(cov).1[0].as_vec3();
+            let want = if want.dot(toward) < 0.0 { -want } else { want };
+            assert!(got.dot(toward) >= 0.0);
+            assert!(
+                got.angle_between(want) < 1e-5,
+                "round {round}: {got} against {want}"
+            );
+        }
     }
 
     #[test]
