@@ -1,5 +1,6 @@
 //! Radii (and PCA normals) from the native grid of one 1440×720 equirect suite station, best
-//! of five: `cargo bench --bench normals` (`-- radii` or `-- normals` for one path only).
+//! of five: `cargo bench --bench normals` (`-- radii` or `-- normals` for one path only;
+//! `-- kdtree` for the same points without their grid, through the k-d tree).
 
 use mvao::projection::SensorModel;
 use mvao::scan::normals;
@@ -18,8 +19,25 @@ fn main() {
     } else {
         5
     };
+    let only = |a: &str| std::env::args().any(|x| x == a);
+    if only("kdtree") {
+        let mut best = f64::INFINITY;
+        let mut sum = 0.0f64;
+        for _ in 0..runs.min(3) {
+            let t = Instant::now();
+            let (n, r) = normals::estimate(&s.points, true, toward);
+            best = best.min(t.elapsed().as_secs_f64());
+            sum = r.iter().map(|&x| x as f64).sum::<f64>()
+                + n.map_or(0.0, |n| n.iter().map(|v| v.x as f64).sum());
+        }
+        println!(
+            "k-d tree radii+normals: {best:.3} s for {} points = {:.2} M points/s (checksum {sum:.6})",
+            s.len(),
+            s.len() as f64 / best / 1e6
+        );
+        return;
+    }
     for need in [false, true] {
-        let only = |a: &str| std::env::args().any(|x| x == a);
         if (only("radii") && need) || (only("normals") && !need) {
             continue;
         }
