@@ -20,41 +20,40 @@ fn main() {
         5
     };
     let only = |a: &str| std::env::args().any(|x| x == a);
-    if only("kdtree") {
+    // Best of `runs` of one estimate, printed with a checksum of its radii and normals.
+    let time = |label: &str, runs: usize, f: &dyn Fn() -> (Option<Vec<glam::Vec3>>, Vec<f32>)| {
         let mut best = f64::INFINITY;
         let mut sum = 0.0f64;
-        for _ in 0..runs.min(3) {
+        for _ in 0..runs {
             let t = Instant::now();
-            let (n, r) = normals::estimate(&s.points, true, toward);
+            let (n, r) = f();
             best = best.min(t.elapsed().as_secs_f64());
             sum = r.iter().map(|&x| x as f64).sum::<f64>()
                 + n.map_or(0.0, |n| n.iter().map(|v| v.x as f64).sum());
         }
         println!(
-            "k-d tree radii+normals: {best:.3} s for {} points = {:.2} M points/s (checksum {sum:.6})",
+            "{label}: {best:.3} s for {} points = {:.2} M points/s (checksum {sum:.6})",
             s.len(),
             s.len() as f64 / best / 1e6
         );
+    };
+    if only("kdtree") {
+        time("k-d tree radii+normals", runs.min(3), &|| {
+            normals::estimate(&s.points, true, toward)
+        });
         return;
     }
     for need in [false, true] {
         if (only("radii") && need) || (only("normals") && !need) {
             continue;
         }
-        let mut best = f64::INFINITY;
-        let mut sum = 0.0f64;
-        for _ in 0..runs {
-            let t = Instant::now();
-            let (n, r) = normals::estimate_grid(&s.points, grid, need, toward);
-            best = best.min(t.elapsed().as_secs_f64());
-            sum = r.iter().map(|&x| x as f64).sum::<f64>()
-                + n.map_or(0.0, |n| n.iter().map(|v| v.x as f64).sum());
-        }
-        println!(
-            "grid {}: {best:.3} s for {} points = {:.2} M points/s (checksum {sum:.6})",
-            if need { "radii+normals" } else { "radii" },
-            s.len(),
-            s.len() as f64 / best / 1e6
-        );
+        let label = if need {
+            "grid radii+normals"
+        } else {
+            "grid radii"
+        };
+        time(label, runs, &|| {
+            normals::estimate_grid(&s.points, grid, need, toward)
+        });
     }
 }
