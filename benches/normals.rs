@@ -1,6 +1,6 @@
 //! Radii (and PCA normals) from the native grid of one 1440×720 equirect suite station, best
 //! of five: `cargo bench --bench normals` (`-- radii` or `-- normals` for one path only;
-//! `-- kdtree` for the same points without their grid, through the k-d tree).
+//! `-- kdtree` for the same points without their grid, through the k-d tree and the cell grid).
 
 use mvao::projection::SensorModel;
 use mvao::scan::normals;
@@ -39,6 +39,9 @@ fn main() {
     };
     if only("kdtree") {
         time("k-d tree radii+normals", runs.min(3), &|| {
+            normals::estimate_kdtree(&s.points, true, toward)
+        });
+        time("cell grid radii+normals", runs.min(3), &|| {
             normals::estimate(&s.points, true, toward)
         });
         return;

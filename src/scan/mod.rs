@@ -2,6 +2,7 @@
 //! normals and native grid. Normals and radii are estimated here when the input has none.
 //! No files, no images.
 
+pub mod knn;
 pub mod normals;
 pub mod occupancy;
 

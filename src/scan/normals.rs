@@ -1,6 +1,7 @@
 //! Per-point normals (PCA over the 16 nearest neighbours, oriented towards the sensor) and
 //! radii `rad(p) = 2·sqrt(d_k²/k)` with `d_k` the distance to the k-th nearest neighbour
-//! (k = 32), from one k-d tree query per point.
+//! (k = 32): from a window of the native grid where the scan has one, else from exact k
+//! nearest neighbour queries (a cell grid, [`super::knn`], or a k-d tree).
 
 use glam::{DVec3, Vec3, Vec3A, Vec4};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -24,6 +25,8 @@ pub fn radius_from_dk(dk: f32, k: usize) -> f32 {
 /// Estimates radii, and normals when `need_normals`, for `points`. `toward(p)` is the unit
 /// direction from `p` to the sensor, used to orient normals (and as the normal where the
 /// neighbourhood is degenerate: duplicates, collinear points, fewer than 3 points).
+/// Neighbours come from a cell grid when the cloud allows one, else from a k-d tree: the same
+/// neighbours either way, so the same radii (normals may differ where distances tie).
 pub fn estimate<F>(points: &[Vec3], need_normals: bool, toward: F) -> (Option<Vec<Vec3>>, Vec<f32>)
 where
     F: Fn(Vec3) -> Vec3 + Sync,
@@ -32,9 +35,32 @@ where
     if n == 0 {
         return (need_normals.then(Vec::new), Vec::new());
     }
+    let k = K_RADIUS.max(K_NORMAL).min(n);
+    if n >= VOXEL_MIN_POINTS {
+        if let Some(g) = super::knn::VoxelGrid::new(points, k) {
+            return estimate_voxels(points, &g, k, need_normals, toward);
+        }
+    }
+    estimate_kdtree(points, need_normals, toward)
+}
+
+/// [`estimate`] through a k-d tree for every query: the reference the cell grid is checked
+/// against, and the path of small or crowded clouds.
+pub fn estimate_kdtree<F>(
+    points: &[Vec3],
+    need_normals: bool,
+    toward: F,
+) -> (Option<Vec<Vec3>>, Vec<f32>)
+where
+    F: Fn(Vec3) -> Vec3 + Sync,
+{
+    let n = points.len();
+    if n == 0 {
+        return (need_normals.then(Vec::new), Vec::new());
+    }
+    let k = K_RADIUS.max(K_NORMAL).min(n);
     let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
     let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&coords);
-    let k = K_RADIUS.max(K_NORMAL).min(n);
     let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
     let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
@@ -50,6 +76,60 @@ where
             if !nrm.is_empty() {
                 let m = nb.len().min(K_NORMAL);
                 nrm[o] = pca_normal(nb[..m].iter().map(|x| points[x.item as usize]), toward(p));
+            }
+        }
+    };
+    run_chunks(&mut radii, &mut normals, work);
+    (need_normals.then_some(normals), radii)
+}
+
+/// Clouds from this size take the cell grid ([`super::knn`]) instead of the k-d tree (below,
+/// building either costs little and the tree needs no occupancy guesses).
+pub const VOXEL_MIN_POINTS: usize = 4096;
+
+/// [`estimate`] with the neighbours from a cell grid: the same neighbours as the k-d tree
+/// (ties broken by index), so the same radii; a query the grid gives up on (an outlier far
+/// from every cell's points) asks a k-d tree built on first need.
+fn estimate_voxels<F>(
+    points: &[Vec3],
+    grid: &super::knn::VoxelGrid,
+    k: usize,
+    need_normals: bool,
+    toward: F,
+) -> (Option<Vec<Vec3>>, Vec<f32>)
+where
+    F: Fn(Vec3) -> Vec3 + Sync,
+{
+    let tree = std::sync::OnceLock::new();
+    let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
+    let (mut radii, mut normals) = outputs(points.len(), need_normals);
+    let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
+        let mut nb: Vec<u64> = Vec::with_capacity(1024);
+        for (o, r) in rad.iter_mut().enumerate() {
+            let i = ci * CHUNK + o;
+            let p = points[i];
+            if !grid.nearest(p, k, &mut nb) {
+                let t: &ImmutableKdTree<f32, 3> = tree.get_or_init(|| {
+                    let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
+                    ImmutableKdTree::new_from_slice(&coords)
+                });
+                nb.clear();
+                nb.extend(
+                    t.nearest_n::<SquaredEuclidean>(&p.to_array(), kq)
+                        .iter()
+                        .map(|x| (u64::from(x.distance.to_bits()) << 32) | x.item),
+                );
+            }
+            let dk = nb
+                .last()
+                .map_or(0.0, |&x| f32::from_bits((x >> 32) as u32).max(0.0).sqrt());
+            *r = radius_from_dk(dk, k);
+            if !nrm.is_empty() {
+                let m = nb.len().min(K_NORMAL);
+                nrm[o] = pca_normal(
+                    nb[..m].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
+                    toward(p),
+                );
             }
         }
     };
