@@ -31,12 +31,8 @@ pub fn estimate<F>(points: &[Vec3], need_normals: bool, toward: F) -> (Option<Ve
 where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
-    let n = points.len();
-    if n == 0 {
-        return (need_normals.then(Vec::new), Vec::new());
-    }
-    let k = K_RADIUS.max(K_NORMAL).min(n);
-    if n >= VOXEL_MIN_POINTS {
+    let k = K_RADIUS.max(K_NORMAL).min(points.len());
+    if points.len() >= VOXEL_MIN_POINTS {
         if let Some(g) = super::knn::VoxelGrid::new(points, k) {
             return estimate_voxels(points, &g, k, need_normals, toward);
         }
@@ -59,8 +55,7 @@ where
         return (need_normals.then(Vec::new), Vec::new());
     }
     let k = K_RADIUS.max(K_NORMAL).min(n);
-    let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
-    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&coords);
+    let tree = kd_tree(points);
     let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
     let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
@@ -68,7 +63,7 @@ where
         for (o, r) in rad.iter_mut().enumerate() {
             let i = base + o;
             let p = points[i];
-            let nb = tree.nearest_n::<SquaredEuclidean>(&coords[i], kq);
+            let nb = tree.nearest_n::<SquaredEuclidean>(&p.to_array(), kq);
             // Results are sorted by distance; the last is the k-th neighbour (self included,
             // as the paper's "smallest sphere containing the k nearest points").
             let dk = nb.last().map(|x| x.distance.max(0.0).sqrt()).unwrap_or(0.0);
@@ -81,6 +76,12 @@ where
     };
     run_chunks(&mut radii, &mut normals, work);
     (need_normals.then_some(normals), radii)
+}
+
+/// The k-d tree of `points` (item `i` is point `i`).
+fn kd_tree(points: &[Vec3]) -> ImmutableKdTree<f32, 3> {
+    let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
+    ImmutableKdTree::new_from_slice(&coords)
 }
 
 /// Clouds from this size take the cell grid ([`super::knn`]) instead of the k-d tree (below,
@@ -109,10 +110,7 @@ where
             let i = ci * CHUNK + o;
             let p = points[i];
             if !grid.nearest(p, k, &mut nb) {
-                let t: &ImmutableKdTree<f32, 3> = tree.get_or_init(|| {
-                    let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
-                    ImmutableKdTree::new_from_slice(&coords)
-                });
+                let t = tree.get_or_init(|| kd_tree(points));
                 nb.clear();
                 nb.extend(
                     t.nearest_n::<SquaredEuclidean>(&p.to_array(), kq)
