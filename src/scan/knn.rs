@@ -37,13 +37,8 @@ struct Table {
 /// The points of a cloud sorted by cell, with where each cell starts.
 #[derive(Debug)]
 pub struct VoxelGrid {
-    /// Point coordinate of each grid axis (the last, along which cells are runs, the longest).
-    ax: [usize; 3],
-    /// Lower corner, in grid axis order.
-    lo: DVec3,
+    geo: Geometry,
     side: f64,
-    inv_side: f64,
-    dims: [i64; 3],
     /// Allowance on a query's distance to an unvisited cell for the rounding of cell indices.
     margin: f64,
     xs: Vec<f32>,
@@ -140,11 +135,8 @@ impl VoxelGrid {
             cstart,
         };
         Some(VoxelGrid {
-            ax,
-            lo,
+            geo: g,
             side,
-            inv_side: g.inv_side,
-            dims: g.dims,
             margin: 1e-9 * (lo.abs().max_element() + size + side),
             xs,
             ys,
@@ -163,12 +155,7 @@ impl VoxelGrid {
         if k == 0 {
             return true;
         }
-        let g = Geometry {
-            ax: self.ax,
-            lo: self.lo,
-            inv_side: self.inv_side,
-            dims: self.dims,
-        };
+        let g = &self.geo;
         let c = g.cell(p);
         let pd = g.perm(p.as_dvec3());
         // Shells until they hold k points: the k-th of them bounds the true k-th distance.
@@ -189,9 +176,9 @@ impl VoxelGrid {
         let reach = (kth * (1.0 + 1e-5)).sqrt() + self.margin;
         // The cells beyond the visited cube that meet the ball of radius `reach`.
         let span = |a: usize| {
-            let lo = ((pd[a] - reach - self.lo[a]) * self.inv_side).floor() as i64;
-            let hi = ((pd[a] + reach - self.lo[a]) * self.inv_side).floor() as i64;
-            (lo.max(0), hi.min(self.dims[a] - 1))
+            let lo = ((pd[a] - reach - g.lo[a]) * g.inv_side).floor() as i64;
+            let hi = ((pd[a] + reach - g.lo[a]) * g.inv_side).floor() as i64;
+            (lo.max(0), hi.min(g.dims[a] - 1))
         };
         let (sx, sy, sz) = (span(0), span(1), span(2));
         let inside = |a: usize, v: (i64, i64)| c[a] - r <= v.0 && v.1 <= c[a] + r;
@@ -209,8 +196,8 @@ impl VoxelGrid {
         }
         let gap = |a: usize, i: i64| {
             let (l, h) = (
-                self.lo[a] + i as f64 * self.side,
-                self.lo[a] + (i + 1) as f64 * self.side,
+                g.lo[a] + i as f64 * self.side,
+                g.lo[a] + (i + 1) as f64 * self.side,
             );
             (l - pd[a]).max(pd[a] - h).max(0.0)
         };
@@ -224,8 +211,8 @@ impl VoxelGrid {
                     continue;
                 }
                 let rz = left.sqrt();
-                let z0 = (((pd.z - rz - self.lo.z) * self.inv_side).floor() as i64).max(sz.0);
-                let z1 = (((pd.z + rz - self.lo.z) * self.inv_side).floor() as i64).min(sz.1);
+                let z0 = (((pd.z - rz - g.lo.z) * g.inv_side).floor() as i64).max(sz.0);
+                let z1 = (((pd.z + rz - g.lo.z) * g.inv_side).floor() as i64).min(sz.1);
                 if z0 > z1 {
                     continue;
                 }
@@ -255,7 +242,7 @@ impl VoxelGrid {
     /// Adds the points of the cells at Chebyshev distance `r` from cell `c` (all cells of the
     /// 3×3×3 block when `r` = 1) to `out`.
     fn shell(&self, c: [i64; 3], r: i64, p: Vec3, out: &mut Vec<u64>) {
-        let [dx, dy, dz] = self.dims;
+        let [dx, dy, dz] = self.geo.dims;
         let (x0, x1) = ((c[0] - r).max(0), (c[0] + r).min(dx - 1));
         let (y0, y1) = ((c[1] - r).max(0), (c[1] + r).min(dy - 1));
         let (z0, z1) = ((c[2] - r).max(0), (c[2] + r).min(dz - 1));
@@ -280,7 +267,7 @@ impl VoxelGrid {
     #[inline]
     fn run(&self, ix: i64, iy: i64, z0: i64, z1: i64, p: Vec3, out: &mut Vec<u64>) {
         let t = &self.table;
-        let col = (ix * self.dims[1] + iy) as usize;
+        let col = (ix * self.geo.dims[1] + iy) as usize;
         let (a, b) = (t.col_first[col] as usize, t.col_first[col + 1] as usize);
         let zs = &t.cz[a..b];
         let first = a + zs.partition_point(|&z| i64::from(z) < z0);
@@ -313,8 +300,11 @@ impl VoxelGrid {
 }
 
 /// Cell indexing shared by the build and the queries, in grid axis order.
+#[derive(Debug)]
 struct Geometry {
+    /// Point coordinate of each grid axis (the last, along which cells are runs, the longest).
     ax: [usize; 3],
+    /// Lower corner, in grid axis order.
     lo: DVec3,
     inv_side: f64,
     dims: [i64; 3],

@@ -34,10 +34,10 @@ where
     let k = K_RADIUS.max(K_NORMAL).min(points.len());
     if points.len() >= VOXEL_MIN_POINTS {
         if let Some(g) = super::knn::VoxelGrid::new(points, k) {
-            return estimate_voxels(points, &g, k, need_normals, toward);
+            return estimate_with(points, Some(&g), k, need_normals, toward);
         }
     }
-    estimate_kdtree(points, need_normals, toward)
+    estimate_with(points, None, k, need_normals, toward)
 }
 
 /// [`estimate`] through a k-d tree for every query: the reference the cell grid is checked
@@ -50,32 +50,8 @@ pub fn estimate_kdtree<F>(
 where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
-    let n = points.len();
-    if n == 0 {
-        return (need_normals.then(Vec::new), Vec::new());
-    }
-    let k = K_RADIUS.max(K_NORMAL).min(n);
-    let tree = kd_tree(points);
-    let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
-    let (mut radii, mut normals) = outputs(n, need_normals);
-    let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
-        let base = ci * CHUNK;
-        for (o, r) in rad.iter_mut().enumerate() {
-            let i = base + o;
-            let p = points[i];
-            let nb = tree.nearest_n::<SquaredEuclidean>(&p.to_array(), kq);
-            // Results are sorted by distance; the last is the k-th neighbour (self included,
-            // as the paper's "smallest sphere containing the k nearest points").
-            let dk = nb.last().map(|x| x.distance.max(0.0).sqrt()).unwrap_or(0.0);
-            *r = radius_from_dk(dk, k);
-            if !nrm.is_empty() {
-                let m = nb.len().min(K_NORMAL);
-                nrm[o] = pca_normal(nb[..m].iter().map(|x| points[x.item as usize]), toward(p));
-            }
-        }
-    };
-    run_chunks(&mut radii, &mut normals, work);
-    (need_normals.then_some(normals), radii)
+    let k = K_RADIUS.max(K_NORMAL).min(points.len());
+    estimate_with(points, None, k, need_normals, toward)
 }
 
 /// The k-d tree of `points` (item `i` is point `i`).
@@ -88,12 +64,12 @@ fn kd_tree(points: &[Vec3]) -> ImmutableKdTree<f32, 3> {
 /// building either costs little and the tree needs no occupancy guesses).
 pub const VOXEL_MIN_POINTS: usize = 4096;
 
-/// [`estimate`] with the neighbours from a cell grid: the same neighbours as the k-d tree
-/// (ties broken by index), so the same radii; a query the grid gives up on (an outlier far
-/// from every cell's points) asks a k-d tree built on first need.
-fn estimate_voxels<F>(
+/// The k nearest neighbours of each point from `grid` (the same neighbours as the k-d tree,
+/// ties broken by index) or, without a grid or for a query it gives up on (an outlier far from
+/// every cell's points), from a k-d tree built on first need; then radii and normals.
+fn estimate_with<F>(
     points: &[Vec3],
-    grid: &super::knn::VoxelGrid,
+    grid: Option<&super::knn::VoxelGrid>,
     k: usize,
     need_normals: bool,
     toward: F,
@@ -101,15 +77,19 @@ fn estimate_voxels<F>(
 where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
+    if points.is_empty() {
+        return (need_normals.then(Vec::new), Vec::new());
+    }
     let tree = std::sync::OnceLock::new();
     let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
     let (mut radii, mut normals) = outputs(points.len(), need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
+        // `(d² bits << 32) | index`, nearest first (the tree's answers in its order).
         let mut nb: Vec<u64> = Vec::with_capacity(1024);
         for (o, r) in rad.iter_mut().enumerate() {
             let i = ci * CHUNK + o;
             let p = points[i];
-            if !grid.nearest(p, k, &mut nb) {
+            if !grid.is_some_and(|g| g.nearest(p, k, &mut nb)) {
                 let t = tree.get_or_init(|| kd_tree(points));
                 nb.clear();
                 nb.extend(
@@ -118,6 +98,8 @@ where
                         .map(|x| (u64::from(x.distance.to_bits()) << 32) | x.item),
                 );
             }
+            // The last is the k-th neighbour (self included, as the paper's "smallest sphere
+            // containing the k nearest points").
             let dk = nb
                 .last()
                 .map_or(0.0, |&x| f32::from_bits((x >> 32) as u32).max(0.0).sqrt());
