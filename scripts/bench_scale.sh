@@ -57,7 +57,7 @@ for k, v in sorted(r["timings_s"].items(), key=lambda kv: -kv[1]):
 # CPU time varies less than wall time on a shared machine.
 print(f"CPU: {cpu:.1f} s user+system = {cpu/wall:.2f} cores busy, {cpu/(pts/1e6):.2f} CPU-s per M points")
 print(f"peak RSS: {rss/2**30:.2f} GiB (time -v), {r['peak_rss_bytes']/2**30:.2f} GiB (report)")
-print(f"maps loaded by the merge: {r['map_loads']}; pairs kept {r['plan']['pairs_kept']}, skipped {r['plan']['pairs_skipped']}")
+print(f"maps loaded by the merge: {r['map_loads']} (views kept from the prepare pass: {r['views_kept']}); pairs kept {r['plan']['pairs_kept']}, skipped {r['plan']['pairs_skipped']}")
 print("bytes read: " + ", ".join(f"{k} {v/2**30:.2f} GiB" for k, v in r["bytes_read"].items()))
 print(f"extrapolated to 317 M points at this rate: {317e6/(pts/wall)/3600:.2f} h")
 if repeat > 1:

@@ -6,8 +6,9 @@
 //! 2. **prepare**: per scan, the G-buffer, SSAO map and border field, written to the work
 //!    directory unless a product with the same inputs and parameters is already there;
 //! 3. **merge**: per scan, the other scans' maps are loaded on demand through a cache bounded
-//!    by the budget, added one view at a time in index order (bit-identical to the in-memory
-//!    merge), and the results written.
+//!    by the budget (which starts with the views the prepare pass kept, those of the first
+//!    scans merged while they fit), added one view at a time in index order (bit-identical to
+//!    the in-memory merge), and the results written.
 //!
 //! Every product is written atomically and recorded last, so a run killed at any moment
 //! leaves the work directory consistent; the rerun recomputes only what is missing.
@@ -157,6 +158,29 @@ fn files_to_hold(held: &[u64], views: &[u64], margin: u64, budget: u64) -> usize
         .rev()
         .find(|&k| fits(k))
         .unwrap_or(0)
+}
+
+/// Which scans' views (`views`: bytes of each, `need`: those the merge uses) the prepare pass
+/// keeps for the merge: the needed ones of the first scans, in the order the merge visits
+/// them, while their sum stays within `budget` less `margin` (all of them when they fit). The
+/// merge's cache then starts with the maps it asks for first instead of reading them back.
+fn views_to_keep(views: &[u64], need: &[bool], margin: u64, budget: u64) -> Vec<bool> {
+    let mut room = budget.saturating_sub(margin);
+    let mut open = true;
+    views
+        .iter()
+        .zip(need)
+        .map(|(&v, &wanted)| {
+            let kept = open && wanted && v <= room;
+            if kept {
+                room -= v;
+            } else if wanted {
+                // A prefix: a later, smaller view would be asked for after the one left out.
+                open = false;
+            }
+            kept
+        })
+        .collect()
 }
 
 /// Heap bytes of a parsed scan.
@@ -538,6 +562,8 @@ pub struct Outcome {
     pub prepared: (usize, usize),
     /// Maps loaded by the merge (cache misses).
     pub map_loads: u64,
+    /// Views the prepare pass handed to the merge.
+    pub views_kept: u64,
     /// Per merged scan: (name, single-view SSAO, AO), kept only when asked (for `--reference`).
     pub values: Vec<(String, Vec<f32>, Vec<f32>)>,
     /// Warnings.
@@ -817,6 +843,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         bytes_read,
         prepared: (0, 0),
         map_loads: 0,
+        views_kept: 0,
         values: Vec::new(),
         warnings,
         refs,
@@ -853,14 +880,19 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     // input file fit in the budget; the manifest entry, the commit point, still follows its
     // products and summary.
     let overlap = 4 * out.plan.largest_view_bytes + 5 * max_file_bytes + (64 << 20) <= budget;
-    // When every view fits with room to spare, the merge takes the views from here instead of
-    // reading back their products (the same values).
-    let keep = roomy && !cfg.prepare_only;
+    // The merge takes the views kept here instead of reading back their products (the same
+    // values): all of them when they fit, else those it visits first.
+    let keep = if cfg.prepare_only {
+        vec![false; n]
+    } else {
+        views_to_keep(&vb, &need, 2 * floor, budget)
+    };
+    let keep_room = budget.saturating_sub(2 * floor);
     // The pass frees a file's held scans once it has taken them while the views it keeps pile
     // up: keep the held files (a prefix) for which the sum stays in the budget at every step.
     let file_views: Vec<u64> = (0..placer.len())
         .map(|fi| {
-            let kept = |i: &usize| keep && cat[*i].file == fi && need[*i];
+            let kept = |i: &usize| keep[*i] && cat[*i].file == fi;
             (0..n).filter(kept).map(|i| vb[i]).sum()
         })
         .collect();
@@ -868,11 +900,17 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     let hold = files_to_hold(&held_of, &file_views, 2 * floor, budget);
     held.retain(|&fi, _| fi < hold);
     let mut fresh: HashMap<usize, (MergeMaps, u64)> = HashMap::new();
+    let mut fresh_bytes = 0u64;
     let mut hand_over = |i: usize, v: PreparedView| {
-        if keep {
+        if keep[i] {
             let m = MergeMaps::from_view(v);
             let b = m.heap_bytes();
-            fresh.insert(i, (m, b));
+            // The plan counted estimated sizes: a view larger than estimated is not kept
+            // beyond the room the plan gave the views.
+            if fresh_bytes + b <= keep_room {
+                fresh_bytes += b;
+                fresh.insert(i, (m, b));
+            }
         }
     };
     std::thread::scope(|sc| -> Result<()> {
@@ -1066,6 +1104,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             (s.map_size[0] * s.map_size[1]) as u64
         })
     };
+    let kept_views = fresh.len() as u64;
     let mut cache = MapCache {
         budget,
         outside: 0,
@@ -1273,6 +1312,7 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
         Ok(())
     })?;
     out.map_loads = cache.loads;
+    out.views_kept = kept_views;
     merge_read += cache.bytes_read;
     obs.done("merge", t0.elapsed().as_secs_f64());
     out.times
@@ -1342,6 +1382,28 @@ mod tests {
                 "{n} points with normals and grid"
             );
         }
+    }
+
+    #[test]
+    fn the_views_of_the_first_scans_are_kept_while_they_fit() {
+        let all = [true; 4];
+        assert_eq!(views_to_keep(&[50, 50, 50, 50], &all, 10, 210), [true; 4]);
+        assert_eq!(
+            views_to_keep(&[50, 50, 50, 50], &all, 10, 160),
+            [true, true, true, false]
+        );
+        // A prefix: the small view after one that does not fit is not kept either.
+        assert_eq!(
+            views_to_keep(&[50, 80, 10, 50], &all, 0, 100),
+            [true, false, false, false]
+        );
+        // Views the merge does not use are skipped, not counted.
+        assert_eq!(
+            views_to_keep(&[50, 80, 50, 50], &[true, false, true, true], 0, 100),
+            [true, false, true, false]
+        );
+        assert_eq!(views_to_keep(&[50, 50], &all, 200, 100), [false, false]);
+        assert_eq!(views_to_keep(&[], &[], 0, 100), Vec::<bool>::new());
     }
 
     #[test]

@@ -751,6 +751,7 @@ pub fn run(cfg: &Config) -> Result<Report> {
     report.alignment = oc.alignment.as_ref().map(|a| a.display().to_string());
     report.products = [oc.prepared.0, oc.prepared.1];
     report.map_loads = oc.map_loads;
+    report.views_kept = oc.views_kept;
     if cfg.dry_run {
         println!("{}", oc.plan.to_text());
         report.plan = Some(oc.plan);

@@ -35,6 +35,8 @@ pub struct Report {
     pub products: [usize; 2],
     /// Maps of other scans loaded by the merge (cache misses).
     pub map_loads: u64,
+    /// Views the prepare pass handed to the merge instead of the merge reading them back.
+    pub views_kept: u64,
     /// Error against a reference (`--reference`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accuracy: Option<crate::accuracy::Accuracy>,

@@ -197,7 +197,8 @@ fn the_plan_skips_pairs_that_cannot_meet() {
 
 /// Eight stations whose maps do not all fit in a 200 MiB budget: the merge reloads maps
 /// instead of holding them, the output equals an unbounded run (which merges the views its
-/// prepare pass made, reading none back), and the peak stays under the budget plus 10 %.
+/// prepare pass made, reading none back), and the peak stays under the budget plus 10 %;
+/// under a budget that holds some of the views, the merge takes those from the prepare pass.
 #[test]
 fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
     let d = tempfile::tempdir().unwrap();
@@ -227,6 +228,39 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
         "peak {} MiB over the {} MiB budget",
         peak >> 20,
         budget >> 20
+    );
+
+    assert_eq!(r_free["views_kept"], 8);
+    assert_eq!(r["views_kept"], 0);
+
+    // A budget that holds four and a half views beside what one step needs (five times an
+    // input file, three views and 16 MiB, twice, as the plan counts it): the prepare pass
+    // keeps the views of the first four scans for the merge, which reads back the others'.
+    let file = scans
+        .iter()
+        .map(|p| std::fs::metadata(p).unwrap().len())
+        .max()
+        .unwrap();
+    let view = r_free["plan"]["largest_view_bytes"].as_u64().unwrap();
+    assert_eq!(all, 8 * view, "the stations' views differ in size");
+    let floor = 5 * file + 3 * view + (16 << 20);
+    let part_budget = 2 * floor + 9 * view / 2;
+    let part = d.path().join("part");
+    let r = merge(
+        &scans,
+        &part,
+        &["--max-memory", &format!("{}M", part_budget >> 20)],
+    );
+    assert_eq!(outputs(&part), outputs(&free));
+    assert_eq!(r["views_kept"], 4);
+    // The four other scans' own maps at least.
+    assert!(r["map_loads"].as_u64().unwrap() >= 4, "{}", r["map_loads"]);
+    let peak = r["peak_rss_bytes"].as_u64().unwrap();
+    assert!(
+        peak as f64 <= part_budget as f64 * 1.1,
+        "peak {} MiB over the {} MiB budget",
+        peak >> 20,
+        part_budget >> 20
     );
 }
 
