@@ -651,10 +651,24 @@ impl PlyFile {
                     *a = (off, t);
                 }
                 // In range for every row (checked above), so each read succeeds.
-                bytes
-                    .par_chunks_exact(stride.max(1))
-                    .map(|row| f(at.map(|(o, t)| t.read_f64(row, o).unwrap_or(f64::NAN))))
-                    .collect_into_vec(&mut out);
+                let t0 = at.first().map_or(ScalarType::F64, |a| a.1);
+                if at.iter().all(|a| a.1 == t0) {
+                    let offs = at.map(|a| a.0);
+                    macro_rules! rows {
+                        ($l:ty) => {
+                            bytes
+                                .par_chunks_exact(stride.max(1))
+                                .map(|row| f(offs.map(|o| <$l>::at(row, o))))
+                                .collect_into_vec(&mut out)
+                        };
+                    }
+                    uniform_dispatch!(t0, rows);
+                } else {
+                    bytes
+                        .par_chunks_exact(stride.max(1))
+                        .map(|row| f(at.map(|(o, t)| t.read_f64(row, o).unwrap_or(f64::NAN))))
+                        .collect_into_vec(&mut out);
+                }
             }
             Layout::Rows { .. } => {
                 layout.for_each_row(|row| {
@@ -707,6 +721,29 @@ impl PlyFile {
                     at.push((off, t));
                 }
                 const ROWS: usize = 1 << 14;
+                let t0 = at
+                    .first()
+                    .map_or(ScalarType::F64, |a: &(usize, ScalarType)| a.1);
+                if at.iter().all(|a| a.1 == t0) {
+                    let offs: Vec<usize> = at.iter().map(|a| a.0).collect();
+                    macro_rules! counts {
+                        ($l:ty) => {
+                            bytes
+                                .par_chunks(stride.max(1) * ROWS)
+                                .map(|rows| {
+                                    let mut n = vec![0usize; k];
+                                    for row in rows.chunks_exact(stride.max(1)) {
+                                        for (n, &o) in n.iter_mut().zip(&offs) {
+                                            *n += usize::from(bad(<$l>::at(row, o)));
+                                        }
+                                    }
+                                    n
+                                })
+                                .reduce(|| vec![0; k], add)
+                        };
+                    }
+                    return Some(uniform_dispatch!(t0, counts));
+                }
                 Some(
                     bytes
                         .par_chunks(stride.max(1) * ROWS)
@@ -959,6 +996,53 @@ impl Encoded {
 fn le_array<const N: usize>(b: &[u8], off: usize) -> Option<[u8; N]> {
     b.get(off..off.checked_add(N)?)?.try_into().ok()
 }
+
+/// A scalar type fixed at compile time: a little-endian value read as f64 (exactly), NaN where
+/// the row is too short, as [`ScalarType::read_f64`] with the type's branch taken once per
+/// column set instead of once per value.
+trait LeScalar {
+    fn at(row: &[u8], off: usize) -> f64;
+}
+
+macro_rules! le_scalars {
+    ($($name:ident: $t:ty, $n:literal;)*) => {$(
+        struct $name;
+        impl LeScalar for $name {
+            #[inline(always)]
+            fn at(row: &[u8], off: usize) -> f64 {
+                le_array::<$n>(row, off).map_or(f64::NAN, |a| f64::from(<$t>::from_le_bytes(a)))
+            }
+        }
+    )*};
+}
+
+le_scalars! {
+    LeI8: i8, 1;
+    LeU8: u8, 1;
+    LeI16: i16, 2;
+    LeU16: u16, 2;
+    LeI32: i32, 4;
+    LeU32: u32, 4;
+    LeF32: f32, 4;
+    LeF64: f64, 8;
+}
+
+/// Expands `$body!(L)` with the [`LeScalar`] of scalar type `$t`.
+macro_rules! uniform_dispatch {
+    ($t:expr, $body:ident) => {
+        match $t {
+            ScalarType::I8 => $body!(LeI8),
+            ScalarType::U8 => $body!(LeU8),
+            ScalarType::I16 => $body!(LeI16),
+            ScalarType::U16 => $body!(LeU16),
+            ScalarType::I32 => $body!(LeI32),
+            ScalarType::U32 => $body!(LeU32),
+            ScalarType::F32 => $body!(LeF32),
+            ScalarType::F64 => $body!(LeF64),
+        }
+    };
+}
+use uniform_dispatch;
 
 /// `v` as a `u32` index if it is a whole number in range.
 fn to_u32(v: f64) -> Option<u32> {
@@ -2197,6 +2281,73 @@ mod tests {
     /// entries are empty or hold one vertex index.
     /// One pass over several columns reads what the columns read one by one do, with fixed
     /// rows and with rows holding a list, and refuses what they refuse.
+    /// Columns of one type are read with the type fixed in the loop: the same values as the
+    /// general per-value reading, for every scalar type, in `map_scalars` and `count_scalars`.
+    #[test]
+    fn uniform_columns_read_as_the_general_path_does() {
+        let types = [
+            "char", "uchar", "short", "ushort", "int", "uint", "float", "double",
+        ];
+        let mut head = String::from("ply\nformat binary_little_endian 1.0\nelement vertex 4\n");
+        for t in types {
+            head += &format!("property {t} a_{t}\nproperty {t} b_{t}\n");
+        }
+        head += "property float last\nend_header\n";
+        let mut body = Vec::new();
+        for r in 0..4i32 {
+            for (k, t) in types.iter().enumerate() {
+                for v in [r * 37 - 60 + k as i32, 100 - r * 51] {
+                    match *t {
+                        "char" => body.extend_from_slice(&(v as i8).to_le_bytes()),
+                        "uchar" => body.extend_from_slice(&(v as u8).to_le_bytes()),
+                        "short" => body.extend_from_slice(&(v as i16 * 300).to_le_bytes()),
+                        "ushort" => body.extend_from_slice(&(v as u16).to_le_bytes()),
+                        "int" => body.extend_from_slice(&(v * 70_000).to_le_bytes()),
+                        "uint" => body.extend_from_slice(&(v as u32).to_le_bytes()),
+                        "float" => {
+                            let f = if r == 2 { f32::NAN } else { v as f32 / 3.0 };
+                            body.extend_from_slice(&f.to_le_bytes())
+                        }
+                        _ => {
+                            let f = if r == 1 {
+                                f64::INFINITY
+                            } else {
+                                v as f64 / 7.0
+                            };
+                            body.extend_from_slice(&f.to_le_bytes())
+                        }
+                    }
+                }
+            }
+            body.extend_from_slice(&(r as f32).to_le_bytes());
+        }
+        let p = read_ok(&ply(&head, &body));
+        for t in types {
+            let (a, b) = (format!("a_{t}"), format!("b_{t}"));
+            // Mixed with another type, the general path reads each value by its type.
+            let other = if t == "float" { "a_uchar" } else { "last" };
+            let general = p
+                .map_scalars("vertex", [a.as_str(), b.as_str(), other], |v| v)
+                .unwrap();
+            let uniform = p
+                .map_scalars("vertex", [a.as_str(), b.as_str()], |v| v)
+                .unwrap();
+            assert_eq!(uniform.len(), 4);
+            for (u, g) in uniform.iter().zip(&general) {
+                assert_eq!(u[0].to_bits(), g[0].to_bits(), "{t}");
+                assert_eq!(u[1].to_bits(), g[1].to_bits(), "{t}");
+            }
+            let bad = |v: f64| !v.is_finite() || v < 0.0;
+            let general = p
+                .count_scalars("vertex", &[a.as_str(), b.as_str(), other], bad)
+                .unwrap();
+            let uniform = p
+                .count_scalars("vertex", &[a.as_str(), b.as_str()], bad)
+                .unwrap();
+            assert_eq!(uniform[..], general[..2], "{t}");
+        }
+    }
+
     #[test]
     fn map_scalars_equals_scalar_columns() {
         let fixed = read_ok(
