@@ -650,24 +650,30 @@ impl PlyFile {
                     }
                     *a = (off, t);
                 }
-                // In range for every row (checked above), so each read succeeds.
-                let t0 = at.first().map_or(ScalarType::F64, |a| a.1);
-                if at.iter().all(|a| a.1 == t0) {
-                    let offs = at.map(|a| a.0);
-                    macro_rules! rows {
-                        ($l:ty) => {
-                            bytes
-                                .par_chunks_exact(stride.max(1))
-                                .map(|row| f(offs.map(|o| <$l>::at(row, o))))
-                                .collect_into_vec(&mut out)
-                        };
+                // In range for every row (checked above), so each read succeeds. `$read` reads
+                // column `c` of a row.
+                macro_rules! rows {
+                    ($read:expr) => {
+                        bytes
+                            .par_chunks_exact(stride.max(1))
+                            .map(|row| f(std::array::from_fn(|c| $read(row, c))))
+                            .collect_into_vec(&mut out)
+                    };
+                }
+                match uniform_type(&at) {
+                    Some(t) => {
+                        let offs = at.map(|a| a.0);
+                        macro_rules! typed {
+                            ($l:ty) => {
+                                rows!(|row: &[u8], c: usize| <$l>::at(row, offs[c]))
+                            };
+                        }
+                        uniform_dispatch!(t, typed)
                     }
-                    uniform_dispatch!(t0, rows);
-                } else {
-                    bytes
-                        .par_chunks_exact(stride.max(1))
-                        .map(|row| f(at.map(|(o, t)| t.read_f64(row, o).unwrap_or(f64::NAN))))
-                        .collect_into_vec(&mut out);
+                    None => rows!(|row: &[u8], c: usize| {
+                        let (o, t): (usize, ScalarType) = at[c];
+                        t.read_f64(row, o).unwrap_or(f64::NAN)
+                    }),
                 }
             }
             Layout::Rows { .. } => {
@@ -721,43 +727,38 @@ impl PlyFile {
                     at.push((off, t));
                 }
                 const ROWS: usize = 1 << 14;
-                let t0 = at
-                    .first()
-                    .map_or(ScalarType::F64, |a: &(usize, ScalarType)| a.1);
-                if at.iter().all(|a| a.1 == t0) {
-                    let offs: Vec<usize> = at.iter().map(|a| a.0).collect();
-                    macro_rules! counts {
-                        ($l:ty) => {
-                            bytes
-                                .par_chunks(stride.max(1) * ROWS)
-                                .map(|rows| {
-                                    let mut n = vec![0usize; k];
-                                    for row in rows.chunks_exact(stride.max(1)) {
-                                        for (n, &o) in n.iter_mut().zip(&offs) {
-                                            *n += usize::from(bad(<$l>::at(row, o)));
-                                        }
+                // `$read` reads column `c` of a row.
+                macro_rules! counts {
+                    ($read:expr) => {
+                        bytes
+                            .par_chunks(stride.max(1) * ROWS)
+                            .map(|rows| {
+                                let mut n = vec![0usize; k];
+                                for row in rows.chunks_exact(stride.max(1)) {
+                                    for (c, n) in n.iter_mut().enumerate() {
+                                        *n += usize::from(bad($read(row, c)));
                                     }
-                                    n
-                                })
-                                .reduce(|| vec![0; k], add)
-                        };
-                    }
-                    return Some(uniform_dispatch!(t0, counts));
-                }
-                Some(
-                    bytes
-                        .par_chunks(stride.max(1) * ROWS)
-                        .map(|rows| {
-                            let mut n = vec![0usize; k];
-                            for row in rows.chunks_exact(stride.max(1)) {
-                                for (n, &(o, t)) in n.iter_mut().zip(&at) {
-                                    *n += usize::from(bad(t.read_f64(row, o).unwrap_or(f64::NAN)));
                                 }
-                            }
-                            n
-                        })
-                        .reduce(|| vec![0; k], add),
-                )
+                                n
+                            })
+                            .reduce(|| vec![0; k], add)
+                    };
+                }
+                Some(match uniform_type(&at) {
+                    Some(t) => {
+                        let offs: Vec<usize> = at.iter().map(|a| a.0).collect();
+                        macro_rules! typed {
+                            ($l:ty) => {
+                                counts!(|row: &[u8], c: usize| <$l>::at(row, offs[c]))
+                            };
+                        }
+                        uniform_dispatch!(t, typed)
+                    }
+                    None => counts!(|row: &[u8], c: usize| {
+                        let (o, t): (usize, ScalarType) = at[c];
+                        t.read_f64(row, o).unwrap_or(f64::NAN)
+                    }),
+                })
             }
             layout @ Layout::Rows { .. } => {
                 let mut n = vec![0usize; k];
@@ -1025,6 +1026,12 @@ le_scalars! {
     LeU32: u32, 4;
     LeF32: f32, 4;
     LeF64: f64, 8;
+}
+
+/// The type all of `cols` (offset, type) share, if they share one.
+fn uniform_type(cols: &[(usize, ScalarType)]) -> Option<ScalarType> {
+    let t = cols.first().map_or(ScalarType::F64, |c| c.1);
+    cols.iter().all(|c| c.1 == t).then_some(t)
 }
 
 /// Expands `$body!(L)` with the [`LeScalar`] of scalar type `$t`.
@@ -2279,8 +2286,6 @@ mod tests {
 
     /// A Stanford-style range scan: `obj_info` grid size and a `range_grid` element whose
     /// entries are empty or hold one vertex index.
-    /// One pass over several columns reads what the columns read one by one do, with fixed
-    /// rows and with rows holding a list, and refuses what they refuse.
     /// Columns of one type are read with the type fixed in the loop: the same values as the
     /// general per-value reading, for every scalar type, in `map_scalars` and `count_scalars`.
     #[test]
@@ -2348,6 +2353,8 @@ mod tests {
         }
     }
 
+    /// One pass over several columns reads what the columns read one by one do, with fixed
+    /// rows and with rows holding a list, and refuses what they refuse.
     #[test]
     fn map_scalars_equals_scalar_columns() {
         let fixed = read_ok(
