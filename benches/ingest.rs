@@ -9,7 +9,6 @@
 use glam::DVec3;
 use mvao::io::ply::PlyFile;
 use mvao::io::scan_ply;
-use mvao::pipeline::prepare_view;
 use mvao::products::{
     load_maps_for_merge, load_view, save_view_with, InputRecord, Manifest, MapCompression,
     SaveOptions,
@@ -18,6 +17,7 @@ use mvao::sensor::ProjectionChoice;
 use mvao::ssao::{Estimator, SsaoParams};
 use mvao::synth::write_scan_ply;
 use mvao::synth::{scan_scene, Scene, Station};
+use mvao::view::prepare_view;
 use std::hint::black_box;
 use std::time::Instant;
 

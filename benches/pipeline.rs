@@ -4,11 +4,11 @@
 
 use mvao::merge::cull::PointCells;
 use mvao::merge::{self, MergeParams};
-use mvao::pipeline::{merge_views, prepare_view, view_cells, view_maps};
 use mvao::projection::SensorModel;
 use mvao::sensor::ProjectionChoice;
 use mvao::ssao::{self, Estimator, SsaoParams};
 use mvao::synth::{scan_scene, station_layout, SceneKind};
+use mvao::view::{merge_views, prepare_view, view_cells, view_maps};
 use std::time::Instant;
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {

@@ -1,10 +1,10 @@
 //! Command-line flags (what the user typed) and their check into a [`Config`]. Opens no files.
 
 use crate::accuracy::{Geometry, RefConfig};
+use crate::config::{ComputeParams, Config};
 use crate::io::dataset::{PlaceOptions, PoseOverride};
 use crate::io::output::ColorMode;
 use crate::io::source::Format;
-use crate::pipeline::{ComputeParams, Config};
 use crate::projection::SensorModel;
 use crate::reference::RefParams;
 use crate::sensor::ProjectionChoice;

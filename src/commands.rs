@@ -2,7 +2,7 @@
 //! print the summary. The binary only parses flags and prints the error chain.
 
 use crate::cli::{Command, EvalArgs, PlotArgs, SweepArgs};
-use crate::pipeline::ComputeParams;
+use crate::config::ComputeParams;
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::{IsTerminal as _, Write as _};

@@ -13,7 +13,9 @@
 //!
 //! ```
 //! use glam::DVec3;
-//! use mvao::pipeline::{compute, ComputeParams, Silent};
+//! use mvao::config::ComputeParams;
+//! use mvao::pipeline::compute;
+//! use mvao::progress::Silent;
 //! use mvao::ssao::Estimator;
 //! use mvao::synth::{scan_scene, Scene, Station};
 //!
@@ -41,25 +43,30 @@
 pub mod accuracy;
 pub mod cli;
 pub mod commands;
+pub mod config;
 pub mod error;
 pub mod eval;
 pub mod gbuffer;
 pub mod info;
 pub mod io;
 pub mod merge;
-pub mod outofcore;
 pub mod pagebuf;
 pub mod par;
 pub mod pipeline;
 pub mod plot;
 pub mod products;
+pub mod progress;
 pub mod projection;
 pub mod reference;
 pub mod report;
 pub mod scan;
 pub mod sensor;
+pub mod site;
 pub mod ssao;
+pub mod store;
 pub mod sweep;
 pub mod synth;
+pub mod sys;
+pub mod view;
 
 pub use error::{Error, Result};

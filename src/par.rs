@@ -1,7 +1,7 @@
 //! Per-pixel and per-point buffers filled in parallel.
 //!
 //! A `vec![v; n]` of a map or a scan is written by one thread; under the kept-memory allocator
-//! (see [`crate::outofcore::keep_freed_memory`]) even a zero fill is a serial `memset`, and fresh
+//! (see [`crate::sys::keep_freed_memory`]) even a zero fill is a serial `memset`, and fresh
 //! pages fault in on that thread while the other cores wait for the next parallel stage.
 
 use rayon::prelude::*;

@@ -2,6 +2,7 @@
 //! scan and why, per-stage wall times and the counts a user needs to trust the result.
 //! Computes nothing it reports.
 
+use crate::eval::Metrics;
 use crate::merge::MergeParams;
 use crate::ssao::SsaoParams;
 use serde::Serialize;
@@ -26,7 +27,7 @@ pub struct Report {
     pub warnings: Vec<String>,
     /// The plan: pairs kept and skipped, memory and work.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub plan: Option<crate::outofcore::Plan>,
+    pub plan: Option<Plan>,
     /// Peak resident memory of the process (bytes).
     pub peak_rss_bytes: Option<u64>,
     /// Bytes read per stage (inputs and products).
@@ -39,7 +40,7 @@ pub struct Report {
     pub views_kept: u64,
     /// Error against a reference (`--reference`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub accuracy: Option<crate::accuracy::Accuracy>,
+    pub accuracy: Option<Accuracy>,
 }
 
 /// Run parameters after defaults were filled in.
@@ -125,4 +126,90 @@ impl Report {
     pub fn add_time(&mut self, stage: &str, secs: f64) {
         *self.timings_s.entry(stage.to_string()).or_insert(0.0) += secs;
     }
+}
+
+/// What the catalog pass learns of one scan.
+#[derive(Debug, Clone, Serialize)]
+pub struct CatalogScan {
+    /// Scan name.
+    pub name: String,
+    /// Index of its file.
+    pub file: usize,
+    /// Index within its file.
+    pub index: usize,
+    /// Valid points.
+    pub points: usize,
+    /// World bounds.
+    pub bounds: [[f64; 3]; 2],
+    /// Pixels of the map it will get (native grid, else about one per point).
+    pub map_pixels: u64,
+    /// xxh3 of its local points, normals and grid (what its products depend on).
+    pub data_hash: String,
+    /// Work-directory key.
+    pub key: String,
+    /// Local → world pose.
+    pub pose: glam::DMat4,
+}
+
+/// The plan of a run, printed by `--dry-run` and kept in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct Plan {
+    /// Per scan.
+    pub scans: Vec<CatalogScan>,
+    /// Pairs (i, j), i ≠ j, whose bounds meet (grown by the reach of SSAO and of eq. 7).
+    pub pairs_kept: usize,
+    /// Pairs that cannot share surface and are skipped.
+    pub pairs_skipped: usize,
+    /// Largest single view in bytes (estimated).
+    pub largest_view_bytes: u64,
+    /// All views together in bytes (estimated): what an in-memory run would hold.
+    pub all_views_bytes: u64,
+    /// The memory budget in bytes.
+    pub budget_bytes: u64,
+    /// Point-views the merge will visit (points × kept views, including their own).
+    pub point_views: u64,
+}
+
+impl Plan {
+    /// A human-readable summary.
+    pub fn to_text(&self) -> String {
+        let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+        let pts: usize = self.scans.iter().map(|s| s.points).sum();
+        format!(
+            "plan: {} scans, {} points; pairs kept {}, skipped {} (cannot share surface); \
+             views ≈ {:.2} GiB in all, largest {:.3} GiB; budget {:.2} GiB; {} point-views to merge",
+            self.scans.len(),
+            pts,
+            self.pairs_kept,
+            self.pairs_skipped,
+            gib(self.all_views_bytes),
+            gib(self.largest_view_bytes),
+            gib(self.budget_bytes),
+            self.point_views
+        )
+    }
+}
+
+/// Metrics of one scan.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanAccuracy {
+    /// Scan name.
+    pub name: String,
+    /// Single-view SSAO against the reference (absent for `mvao eval`).
+    pub ssao: Option<Metrics>,
+    /// The result against the reference.
+    pub result: Metrics,
+}
+
+/// Accuracy of a run against a reference.
+#[derive(Debug, Clone, Serialize)]
+pub struct Accuracy {
+    /// The reference directory.
+    pub reference: String,
+    /// Per scan.
+    pub scans: Vec<ScanAccuracy>,
+    /// All single-view SSAO values together.
+    pub ssao: Option<Metrics>,
+    /// All result values together.
+    pub result: Metrics,
 }

@@ -3,12 +3,15 @@
 //! scores single-view SSAO and the merge against the reference, and writes `sweep.csv` and
 //! `sweep.svg` (e_A against wall time, Pareto front marked).
 
-use crate::accuracy::{evaluate, load_reference};
+use crate::accuracy::evaluate;
+use crate::config::ComputeParams;
 use crate::error::{Error, Result};
 use crate::eval::Metrics;
 use crate::io::dataset::{Dataset, PlaceOptions};
-use crate::pipeline::{compute, ComputeParams, Silent};
+use crate::io::reference::load_reference;
+use crate::pipeline::compute;
 use crate::plot::{self, PlotPoint};
+use crate::progress::Silent;
 use crate::ssao::Estimator;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

@@ -7,12 +7,12 @@
 use glam::{DMat4, DVec3};
 use mvao::merge::cull::PointCells;
 use mvao::merge::{self, MergeParams};
-use mvao::pipeline::{merge_views, prepare_view, view_cells, view_maps};
 use mvao::projection::SensorModel;
 use mvao::scan::Scan;
 use mvao::sensor::ProjectionChoice;
 use mvao::ssao::{Estimator, SsaoParams};
 use mvao::synth::{scan_scene, station_layout, SceneKind};
+use mvao::view::{merge_views, prepare_view, view_cells, view_maps};
 
 fn site(offset: DVec3, model: SensorModel) -> Vec<Scan> {
     let kind = SceneKind::Suite { rooms: 2 };

@@ -13,7 +13,9 @@
 //! minimal case is printed by proptest instead).
 
 use glam::{DMat4, DQuat, DVec2, DVec3, Mat2, Mat3, Vec2};
-use mvao::pipeline::{self, ComputeParams, Silent};
+use mvao::config::ComputeParams;
+use mvao::pipeline;
+use mvao::progress::Silent;
 use mvao::projection::{Model, Projection, Warp};
 use mvao::scan::Scan;
 use mvao::ssao::Estimator;
@@ -825,7 +827,7 @@ fn scan_pair(
 
 /// True when some pixel's nearest depth is shared by two points (the G-buffer then keeps
 /// the lower index, so the point order decides which one).
-fn has_depth_tie(v: &pipeline::PreparedView) -> bool {
+fn has_depth_tie(v: &mvao::view::PreparedView) -> bool {
     let mut best: std::collections::HashMap<u32, (f32, u32)> = Default::default();
     for (&px, &d) in v.pixel.iter().zip(&v.depth) {
         if px == mvao::gbuffer::EMPTY || !d.is_finite() {

@@ -4,8 +4,10 @@
 mod common;
 
 use common::*;
+use mvao::config::ComputeParams;
 use mvao::io::ply::PlyFile;
-use mvao::pipeline::{self, ComputeParams, Silent};
+use mvao::pipeline;
+use mvao::progress::Silent;
 use mvao::scan::normals;
 use std::path::Path;
 

@@ -12,9 +12,11 @@ mod common;
 
 use common::{dome, mvao};
 use glam::{DMat3, DMat4, DVec2, DVec3, Vec3};
+use mvao::config::ComputeParams;
 use mvao::io::align::check_rigid;
 use mvao::io::ply::{PlyFile, ScalarType};
-use mvao::pipeline::{self, ComputeParams, Computed, Silent};
+use mvao::pipeline::{self, Computed};
+use mvao::progress::Silent;
 use mvao::projection::SensorModel;
 use mvao::scan::Scan;
 use mvao::ssao::Estimator;

@@ -2,7 +2,9 @@
 //! corner, and an occluder that only one of two scans sees.
 
 use glam::{DVec2, DVec3};
-use mvao::pipeline::{self, ComputeParams, Silent};
+use mvao::config::ComputeParams;
+use mvao::pipeline;
+use mvao::progress::Silent;
 use mvao::scan::Scan;
 use mvao::ssao::Estimator;
 use mvao::synth::{scan_scene, Prim, Scene, Station};

@@ -4,7 +4,6 @@
 mod common;
 
 use glam::{DVec3, Vec3};
-use mvao::pipeline::{prepare_view, PreparedView};
 use mvao::products::manifest::{self, write_entry, MVAO_VERSION};
 use mvao::products::{
     load_maps_for_merge, load_view, save_view, save_view_with, Check, InputRecord, Manifest,
@@ -13,6 +12,7 @@ use mvao::products::{
 use mvao::sensor::ProjectionChoice;
 use mvao::ssao::{Estimator, SsaoParams};
 use mvao::synth::{scan_scene, Scene, Station};
+use mvao::view::{prepare_view, PreparedView};
 use serde_json::json;
 use std::fs::{self, File};
 use std::path::{Path, PathBuf};

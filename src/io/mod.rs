@@ -12,6 +12,7 @@ pub mod ply;
 mod ply_retain;
 pub mod ptx;
 pub mod raw;
+pub mod reference;
 pub mod results;
 pub mod scan_ply;
 pub mod source;

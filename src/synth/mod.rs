@@ -326,8 +326,8 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
             let a = reference::analytic_obscurance(&scene, &scan, rays, tmax, 0);
             let normals = scan.normals.clone().unwrap_or_default();
             let radii = vec![0.0f32; scan.len()];
-            crate::accuracy::write_reference_ply(
-                &crate::accuracy::reference_path(&dir, &name),
+            crate::io::reference::write_reference_ply(
+                &crate::io::reference::reference_path(&dir, &name),
                 &scan,
                 &normals,
                 &radii,
@@ -470,7 +470,7 @@ mod tests {
             let p = dir
                 .path()
                 .join(format!("synth/reference-analytic/station_{i:03}.ref.ply"));
-            let a = crate::accuracy::read_ao(&p).unwrap();
+            let a = crate::io::reference::read_ao(&p).unwrap();
             assert_eq!(a.len(), sum.files[i].points);
             assert!(a.iter().all(|v| (0.0..=1.0).contains(v)));
         }

@@ -1,0 +1,101 @@
+//! The configuration of a run: what `mvao merge` and `mvao prepare` were asked to do (validated
+//! by the command line) and the parameters of the computation every stage reads. Depends on
+//! nothing but the small parameter types of the modules it configures.
+
+use crate::io::dataset::PlaceOptions;
+use crate::io::output::ColorMode;
+use crate::io::source::Format;
+use crate::sensor::ProjectionChoice;
+use crate::ssao::Estimator;
+use std::path::PathBuf;
+
+/// Everything `mvao merge` needs, validated (see the CLI for meanings and units).
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Input scans.
+    pub scans: Vec<PathBuf>,
+    /// How the scans are placed (alignment file, `--pose`, `--allow-scale`).
+    pub place: PlaceOptions,
+    /// Output format; `None` follows each input.
+    pub format: Option<Format>,
+    /// Output directory.
+    pub out_dir: PathBuf,
+    /// The computation's parameters.
+    pub compute: ComputeParams,
+    /// Gamma of grey colours and previews.
+    pub gamma: f32,
+    /// What happens to input colours.
+    pub color: ColorMode,
+    /// No progress bars.
+    pub quiet: bool,
+    /// Write a PNG preview per scan.
+    pub preview: bool,
+    /// Overwrite existing outputs.
+    pub force: bool,
+    /// Reference directory to score the result against.
+    pub reference: Option<PathBuf>,
+    /// Work directory for per-scan products; `None` = `OUTDIR/work`.
+    pub work_dir: Option<PathBuf>,
+    /// Memory budget in bytes; `None` = half the machine's memory.
+    pub max_memory: Option<u64>,
+    /// Only these scans (by name): prepare them, or merge them against their partners.
+    pub only: Vec<String>,
+    /// Print the plan and stop.
+    pub dry_run: bool,
+    /// Stop after preparing the products (`mvao prepare`).
+    pub prepare_only: bool,
+}
+
+/// Parameters of the in-memory computation (no files).
+#[derive(Debug, Clone)]
+pub struct ComputeParams {
+    /// SSAO radius; `None` = scene diagonal / 50.
+    pub radius: Option<f32>,
+    /// t_max; `None` = 2·radius.
+    pub tmax: Option<f32>,
+    /// Samples per pixel (paper estimator).
+    pub samples: u32,
+    /// Directions per pixel (horizon estimator).
+    pub directions: u32,
+    /// Steps per direction (horizon estimator).
+    pub steps: u32,
+    /// Merge neighbourhood N.
+    pub neighbors: u32,
+    /// d_min override.
+    pub dmin: Option<f32>,
+    /// d_max override.
+    pub dmax: Option<f32>,
+    /// t_p.
+    pub border_px: f32,
+    /// Seed.
+    pub seed: u64,
+    /// Sensor model choice.
+    pub projection: ProjectionChoice,
+    /// Estimator.
+    pub estimator: Estimator,
+    /// Blur SSAO maps.
+    pub blur: bool,
+    /// Skip the merge (MVAO = own SSAO).
+    pub ssao_only: bool,
+}
+
+impl Default for ComputeParams {
+    fn default() -> Self {
+        ComputeParams {
+            radius: None,
+            tmax: None,
+            samples: 32,
+            directions: 8,
+            steps: 8,
+            neighbors: 1,
+            dmin: None,
+            dmax: None,
+            border_px: 64.0,
+            seed: 0,
+            projection: ProjectionChoice::Auto,
+            estimator: Estimator::Horizon,
+            blur: true,
+            ssao_only: false,
+        }
+    }
+}

@@ -1,0 +1,104 @@
+//! Reference files: `<scan>.ref.ply` per scan, the scan's valid points in input order with
+//! world `x y z`, the normal, `radius` and `ao` = the reference obscurance (written by
+//! `mvao reference`, read by `merge --reference` and `mvao eval`).
+
+use crate::error::{Error, Result};
+use crate::io::ply::{PlyFile, ScalarType};
+use crate::scan::Scan;
+use glam::Vec3;
+use std::path::{Path, PathBuf};
+
+/// The reference file of scan `name` in `dir`.
+pub fn reference_path(dir: &Path, name: &str) -> PathBuf {
+    dir.join(format!("{name}.ref.ply"))
+}
+
+/// Writes one scan's reference: world x y z, normal, radius and `ao` = A.
+pub fn write_reference_ply(
+    path: &Path,
+    s: &Scan,
+    normals: &[Vec3],
+    radii: &[f32],
+    a: &[f32],
+) -> Result<()> {
+    let world: Vec<[f64; 3]> = s
+        .points
+        .iter()
+        .map(|p| s.pose.transform_point3(p.as_dvec3()).to_array())
+        .collect();
+    let col = |k: usize| world.iter().map(|p| p[k]).collect::<Vec<f64>>();
+    let ncol = |k: usize| normals.iter().map(|n| n[k] as f64).collect::<Vec<f64>>();
+    let (x, y, z) = (col(0), col(1), col(2));
+    let (nx, ny, nz) = (ncol(0), ncol(1), ncol(2));
+    let r: Vec<f64> = radii.iter().map(|&v| v as f64).collect();
+    let ao: Vec<f64> = a
+        .iter()
+        .map(|&v| {
+            if v.is_finite() {
+                v.clamp(0.0, 1.0) as f64
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let ply = PlyFile::from_vertex_columns(
+        &[
+            ("x", ScalarType::F64, &x),
+            ("y", ScalarType::F64, &y),
+            ("z", ScalarType::F64, &z),
+            ("nx", ScalarType::F32, &nx),
+            ("ny", ScalarType::F32, &ny),
+            ("nz", ScalarType::F32, &nz),
+            ("radius", ScalarType::F32, &r),
+            ("ao", ScalarType::F32, &ao),
+        ],
+        &[format!(
+            "mvao {} reference obscurance of scan {}",
+            env!("CARGO_PKG_VERSION"),
+            s.name
+        )],
+    )?;
+    ply.write_path(path)
+}
+
+/// Reads the `ao` column of a PLY file (a result or a reference).
+pub fn read_ao(path: &Path) -> Result<Vec<f32>> {
+    let ply = PlyFile::read_path(path)?;
+    let v = ply
+        .scalar_column("vertex", "ao")
+        .ok_or_else(|| Error::format(path, "has no per-vertex 'ao' property"))?;
+    Ok(v.iter().map(|&x| x as f32).collect())
+}
+
+/// The references of `scans` from `dir`, checked against their point counts.
+pub fn load_reference(dir: &Path, scans: &[Scan]) -> Result<Vec<Vec<f32>>> {
+    let named: Vec<(String, usize)> = scans.iter().map(|s| (s.name.clone(), s.len())).collect();
+    load_reference_named(dir, &named)
+}
+
+/// The references of the scans named with their point counts.
+pub fn load_reference_named(dir: &Path, scans: &[(String, usize)]) -> Result<Vec<Vec<f32>>> {
+    scans
+        .iter()
+        .map(|(name, len)| {
+            let p = reference_path(dir, name);
+            if !p.is_file() {
+                return Err(Error::Param(format!(
+                    "{}: no reference for scan '{name}' (run `mvao reference` on the same scans)",
+                    p.display(),
+                )));
+            }
+            let a = read_ao(&p)?;
+            if a.len() != *len {
+                return Err(Error::format(
+                    &p,
+                    format!(
+                        "holds {} points but scan '{name}' has {len}: not the reference of this scan",
+                        a.len(),
+                    ),
+                ));
+            }
+            Ok(a)
+        })
+        .collect()
+}

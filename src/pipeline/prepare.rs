@@ -1,0 +1,115 @@
+//! The prepare stage: each scan's view (sensor model, normals and radii, G-buffer, SSAO and
+//! border field) computed where the store has none current, and stored with its summary.
+
+use super::catalog::{changed, data_hash, Inputs};
+use crate::error::{Error, Result};
+use crate::progress::Observer;
+use crate::report::CatalogScan;
+use crate::scan::Scan;
+use crate::sensor::ProjectionChoice;
+use crate::ssao::SsaoParams;
+use crate::store::{Summary, ViewStore};
+use crate::view::{depth_range, prepare_view, PreparedView};
+use std::time::Instant;
+
+/// What the prepare stage did.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Prepared {
+    /// Views computed.
+    pub made: usize,
+    /// Views the store already held.
+    pub reused: usize,
+    /// Bytes of input read.
+    pub bytes_read: u64,
+    /// Wall time (seconds).
+    pub secs: f64,
+}
+
+/// Prepares the views of the scans marked in `need` that `store` does not hold current, one
+/// input file at a time.
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    cat: &[CatalogScan],
+    need: &[bool],
+    inputs: &mut dyn Inputs,
+    store: &mut dyn ViewStore,
+    choice: ProjectionChoice,
+    sp: &SsaoParams,
+    obs: &dyn Observer,
+) -> Result<Prepared> {
+    let t0 = Instant::now();
+    obs.stage("prepare", cat.iter().map(|c| c.points as u64).sum());
+    let mut out = Prepared::default();
+    let n = cat.len();
+    for fi in 0..inputs.files() {
+        let mine: Vec<usize> = (0..n).filter(|&i| cat[i].file == fi && need[i]).collect();
+        let stale: Vec<usize> = mine
+            .iter()
+            .copied()
+            .filter(|&i| !store.is_current(i))
+            .collect();
+        out.reused += mine.len() - stale.len();
+        if stale.is_empty() {
+            obs.advance(
+                cat.iter()
+                    .filter(|c| c.file == fi)
+                    .map(|c| c.points as u64)
+                    .sum(),
+            );
+            continue;
+        }
+        let name = inputs.name(fi);
+        let opened = inputs.for_prepare(fi)?;
+        out.bytes_read += opened.record.as_ref().map_or(0, |r| r.size);
+        for &i in &stale {
+            let s = &opened.scans[cat[i].index];
+            if opened.read_again && data_hash(s) != cat[i].data_hash {
+                return Err(changed(&name));
+            }
+            let v = prepare_view(s, choice, sp)?;
+            let sum = summarize(s, &v, &name)?;
+            store.put(i, opened.record.as_ref(), sum, v)?;
+            out.made += 1;
+            obs.advance(s.len() as u64);
+        }
+    }
+    store.finish_prepare()?;
+    out.secs = t0.elapsed().as_secs_f64();
+    obs.done("prepare", out.secs);
+    Ok(out)
+}
+
+/// The summary of scan `s`'s view `v` (of input `file`); an error when its depths or radii
+/// are not finite, which no stage after could use.
+pub fn summarize(s: &Scan, v: &PreparedView, file: &str) -> Result<Summary> {
+    let (dmin, dmax) = depth_range(&v.depth);
+    let max_radius = v.radii.iter().copied().fold(0.0, f32::max);
+    if !(dmin.is_finite() && dmax.is_finite() && max_radius.is_finite()) {
+        return Err(Error::scan(
+            file,
+            format!(
+                "scan {}: depths or point radii are not finite (depth {dmin}..{dmax} m, largest \
+                 radius {max_radius} m): coordinates out of usable range",
+                s.name
+            ),
+        ));
+    }
+    let (_, no_sample) = v.point_ssao();
+    let proj = &v.sensor.projection;
+    Ok(Summary {
+        points: s.len(),
+        max_radius,
+        depth_min: dmin,
+        depth_max: dmax,
+        ortho: proj.sensor_model() == crate::projection::SensorModel::Ortho,
+        no_sample,
+        filled: v.gbuf.filled(),
+        sensor_model: proj.sensor_model().to_string(),
+        map_size: [proj.width, proj.height],
+        native_grid: v.sensor.grid_pixels.is_some(),
+        fit_rms_px: v.sensor.fit_rms_px,
+        reason: v.sensor.reason.clone(),
+        normals: v.normals_note.clone(),
+        times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
+    })
+}

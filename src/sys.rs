@@ -1,0 +1,67 @@
+//! Probes of the machine and the process (resident memory, total memory) and the allocator
+//! setting the budgeted runs use. No knowledge of scans or stages.
+
+/// A field of a `/proc` status file in bytes (given there in kB), where the system tells.
+fn proc_kb(file: &str, field: &str) -> Option<u64> {
+    let s = std::fs::read_to_string(file).ok()?;
+    let line = s.lines().find(|l| l.starts_with(field))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Peak resident memory of this process so far (bytes), where the system tells.
+pub fn peak_rss() -> Option<u64> {
+    proc_kb("/proc/self/status", "VmHWM:")
+}
+
+/// Resident memory of this process now (bytes), where the system tells.
+pub fn current_rss() -> Option<u64> {
+    proc_kb("/proc/self/status", "VmRSS:")
+}
+
+/// Total memory of the machine (bytes), where the system tells.
+pub fn total_memory() -> Option<u64> {
+    proc_kb("/proc/meminfo", "MemTotal:")
+}
+
+/// The default budget: half the machine's memory (4 GiB where it cannot be read).
+pub fn default_budget() -> u64 {
+    total_memory().map_or(4 << 30, |m| m / 2)
+}
+
+/// Lets the allocator keep the memory a run frees for its next allocations.
+///
+/// A view's maps are tens of megabytes, allocated and freed once per scan. Handed back to the
+/// system, each new allocation arrives as fresh pages the kernel must fault in and zero, on
+/// one thread while the others wait. Resident memory then includes what the allocator keeps,
+/// which the map cache counts as held outside it: an over-estimate, never an under-estimate.
+/// The same holds for the few huge-page buffers [`crate::pagebuf`] keeps. One arena for all
+/// threads lets a buffer freed by one thread (a product writer) be reused by another.
+pub fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt sets three of glibc's allocator parameters (plain integers, under the main
+    // arena's lock); an allocation running on another thread meanwhile follows the old value
+    // or the new one, both valid.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_MAX, 0);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, i32::MAX);
+        libc::mallopt(libc::M_ARENA_MAX, 1);
+    }
+    crate::pagebuf::keep_freed();
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_probes_read_plausible_sizes_where_the_system_tells() {
+        if let (Some(now), Some(peak), Some(total)) = (
+            super::current_rss(),
+            super::peak_rss(),
+            super::total_memory(),
+        ) {
+            assert!(now > 0 && now <= peak, "rss {now}, peak {peak}");
+            assert!(peak < total, "peak {peak}, total {total}");
+            assert_eq!(super::default_budget(), total / 2);
+        }
+    }
+}
