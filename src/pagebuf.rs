@@ -5,9 +5,7 @@
 //! pixels reads from hundreds of pages, more than a first-level TLB holds. A [`PageBuf`] is its own
 //! anonymous mapping with `MADV_HUGEPAGE`, so it gets fresh pages the kernel can back with
 //! huge ones (memory the allocator recycles was already faulted in with small pages and would
-//! stay so). With four half-planes marched per SIMD group, the 8×8 horizon SSAO of a 1440×720
-//! room station (`cargo bench --bench ssao`, alternating builds) went from 0.96–1.13 s to
-//! 0.81–0.94 s; on the SIMD groups alone, without huge pages, it did not change.
+//! stay so), and a miss in the TLB then covers 2 MiB instead of 4 KiB.
 //!
 //! Fresh pages cost the kernel a fault and a clear each; once [`keep_freed`] is called, a
 //! dropped buffer's mapping is kept (up to [`POOL_MAPPINGS`]) for the next buffer it can hold.

@@ -14,9 +14,8 @@ use crate::store::view_bytes;
 use glam::DVec3;
 
 /// Robust scene diagonal: 1st–99th percentile box of a sample of points along the sample's
-/// principal axes. A rigid motion of all poses leaves it unchanged (it was once measured along
-/// the first scan's axes, which made the default radius depend on the order of the files), and
-/// the scans are sampled in name order so that the order of the inputs changes nothing.
+/// principal axes, so that a rigid motion of all poses leaves it unchanged, and the scans are
+/// sampled in name order so that the order of the inputs changes nothing.
 pub fn robust_diagonal(scans: &[Scan]) -> f64 {
     let mut order: Vec<&Scan> = scans.iter().collect();
     order.sort_by(|a, b| a.name.cmp(&b.name));

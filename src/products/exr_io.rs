@@ -11,8 +11,8 @@ use glam::Vec3;
 use std::io::Cursor;
 use std::path::Path;
 
-/// How the maps are compressed. Both are lossless; `None` is the default because it reads and
-/// writes fastest on local disks (see the report in [`crate::products`]).
+/// How the maps are compressed. Both are lossless; `None` is the default because on a local
+/// disk the CPU, not the bytes, bounds reading and writing the maps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum MapCompression {
     /// Uncompressed scan lines: largest files, least CPU.
@@ -100,7 +100,7 @@ pub fn encode_maps(
 
 /// Uncompressed scan lines written straight from the maps into one buffer of the file's
 /// exact size: the same bytes as the `exr` crate's encoder (a test checks it) without its
-/// per-channel copies, which cost a sixth of the prepare pass's page faults.
+/// per-channel copies, each of which faults in fresh pages for a whole map.
 fn encode_uncompressed(
     gbuf: &GBuffer,
     ao: &[f32],
