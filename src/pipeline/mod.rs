@@ -440,6 +440,8 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
     }
     let mut note = std::mem::take(&mut out.defaults_note);
     let mplan = merge_plan(&mut store, &need, prm, &cat, sp.tmax, &mut note)?;
+    // The pair test holds what the merge needs of the occupied cells.
+    cat.occupancy = Vec::new();
     out.defaults_note = note;
     out.merge = mplan.mp;
     for (k, t) in &mplan.times {

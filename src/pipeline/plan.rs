@@ -143,8 +143,6 @@ pub struct Planned {
     pub plan: Plan,
     /// The pair test before the radii are known (only the SSAO reach counts).
     pub pairs: Pairs,
-    /// World bounds of every scan.
-    pub bounds: Vec<(DVec3, DVec3)>,
     /// Estimated bytes of every view.
     pub view_bytes: Vec<u64>,
     /// Scans that share surface with no other (most often misplaced), with the distance to
@@ -161,7 +159,8 @@ pub fn plan(cat: &[CatalogScan], occ: &[Occupancy], tmax: f32, budget: u64) -> P
         .collect();
     // Before the radii are known only the SSAO reach counts; eq. 7's reach is added once they
     // are.
-    let pairs = Pairs::new(bounds.clone(), occ, tmax, 0.0);
+    let centres: Vec<DVec3> = bounds.iter().map(|b| (b.0 + b.1) * 0.5).collect();
+    let pairs = Pairs::new(bounds, occ, tmax, 0.0);
     let mut kept = 0usize;
     let mut point_views = 0u64;
     let mut lonely = Vec::new();
@@ -177,10 +176,9 @@ pub fn plan(cat: &[CatalogScan], occ: &[Occupancy], tmax: f32, budget: u64) -> P
         }
         kept += partners;
         if partners == 0 && n > 1 {
-            let centre = |k: usize| (bounds[k].0 + bounds[k].1) * 0.5;
             let gap = (0..n)
                 .filter(|&j| j != i)
-                .map(|j| centre(i).distance(centre(j)))
+                .map(|j| centres[i].distance(centres[j]))
                 .fold(f64::INFINITY, f64::min);
             lonely.push((i, gap));
         }
@@ -201,7 +199,6 @@ pub fn plan(cat: &[CatalogScan], occ: &[Occupancy], tmax: f32, budget: u64) -> P
     Planned {
         plan,
         pairs,
-        bounds,
         view_bytes: vb,
         lonely,
     }
