@@ -14,9 +14,7 @@
 //! leaves the work directory consistent; the rerun recomputes only what is missing.
 
 use crate::error::{Error, Result};
-use crate::gbuffer::EMPTY;
 use crate::io::dataset::{Dataset, Placer};
-use crate::io::output::write_preview;
 use crate::io::results::{self, WriteOptions};
 use crate::io::source::Container;
 use crate::merge::cull::PointCells;
@@ -607,6 +605,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
     obs.stage("catalog", cfg.scans.len() as u64);
     let mut cat: Vec<CatalogScan> = Vec::new();
     let mut samples: Vec<Scan> = Vec::new();
+    // Per scan: (point spacing, points), for the default radius.
+    let mut spacings: Vec<(f64, usize)> = Vec::new();
     let mut occ: Vec<Occupancy> = Vec::new();
     let mut max_file_bytes = 0u64;
     // Scans of the first files are kept for the prepare pass, which then need not read them
@@ -654,6 +654,9 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
             );
             sample.pose = s.pose;
             samples.push(sample);
+            if cfg.compute.radius.is_none() {
+                spacings.push((crate::radius::scan_spacing(&s.points), s.len()));
+            }
             cat.push(CatalogScan {
                 name: s.name.clone(),
                 file: fi,
@@ -736,7 +739,10 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
 
     // Parameters (as `pipeline::compute` derives them).
     let prm = &cfg.compute;
-    let (sp, note) = crate::pipeline::ssao_params(prm, || robust_diagonal(&samples))?;
+    let (sp, note) = crate::pipeline::ssao_params(prm, || crate::radius::SceneScale {
+        diagonal: robust_diagonal(&samples),
+        spacing: crate::radius::combined_spacing(&spacings),
+    })?;
     drop(samples);
     // The report is written last and marks a complete set: a rerun over an earlier one drops
     // the old report first, so a run that stops half way does not leave new outputs beside
@@ -1195,18 +1201,14 @@ pub fn run(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcom
                 };
                 obs.advance(s.len() as u64);
                 if cfg.preview {
-                    let g = &own.gbuf;
-                    let vals: Vec<Option<f32>> = g
-                        .point
-                        .iter()
-                        .map(|&p| (p != EMPTY).then(|| ao[p as usize]))
-                        .collect();
-                    write_preview(
+                    crate::preview::write_scan_preview(
                         &cfg.out_dir.join(format!("{}.png", s.name)),
-                        g.width,
-                        g.height,
-                        &vals,
+                        &own.gbuf,
+                        &own.projection,
+                        s.pose,
+                        &ao,
                         cfg.gamma,
+                        cfg.preview_style,
                     )?;
                 }
                 let sum = sums[i]

@@ -42,6 +42,8 @@ pub struct Config {
     pub quiet: bool,
     /// Write a PNG preview per scan.
     pub preview: bool,
+    /// How previews are drawn (up axis, tone).
+    pub preview_style: crate::preview::PreviewStyle,
     /// Overwrite existing outputs.
     pub force: bool,
     /// Reference directory to score the result against.
@@ -255,26 +257,26 @@ pub fn robust_diagonal(scans: &[Scan]) -> f64 {
     }
 }
 
-/// The SSAO parameters of a run, with a note on how the defaults were derived: radius =
-/// robust scene diagonal / 50 (`diag` is only called when no radius is given), t_max =
-/// 2 × radius.
+/// The SSAO parameters of a run, with a note on how the defaults were derived: radius from
+/// the scene's size and point spacing ([`crate::radius`]; `scale` is only called when no
+/// radius is given), t_max = 2 × radius.
 pub fn ssao_params(
     prm: &ComputeParams,
-    diag: impl FnOnce() -> f64,
+    scale: impl FnOnce() -> crate::radius::SceneScale,
 ) -> Result<(SsaoParams, String)> {
     let mut note = String::new();
     let radius = match prm.radius {
         Some(r) => r,
         None => {
-            let d = diag();
-            let r = (d / 50.0) as f32;
-            if !(r > 0.0 && r.is_finite()) {
+            let sc = scale();
+            let Some((r, how)) = sc.default_radius() else {
                 return Err(Error::Param(format!(
-                    "no default SSAO radius: the scans' robust diagonal is {d} m (every point at \
-                     one place, or coordinates beyond single precision); give --radius in metres"
+                    "no default SSAO radius: the scans' robust diagonal is {} m (every point at \
+                     one place, or coordinates beyond single precision); give --radius in metres",
+                    sc.diagonal
                 )));
-            }
-            note += &format!("radius = scene diagonal {d:.4} m / 50 = {r:.4} m; ");
+            };
+            note += &how;
             r
         }
     };
@@ -426,7 +428,10 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
     if let Some(s) = scans.iter().find(|s| s.is_empty()) {
         return Err(Error::scan(&s.name, "has no valid point"));
     }
-    let (sp, mut note) = ssao_params(prm, || robust_diagonal(scans))?;
+    let (sp, mut note) = ssao_params(prm, || crate::radius::SceneScale {
+        diagonal: robust_diagonal(scans),
+        spacing: crate::radius::spacing_of(scans),
+    })?;
     let tmax = sp.tmax;
     let total: u64 = scans.iter().map(|s| s.len() as u64).sum();
     obs.stage("prepare", total);
