@@ -18,6 +18,7 @@
 use crate::scan::Scan;
 use glam::Vec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
 use std::num::NonZeroUsize;
 
 /// Neighbours per spacing estimate (the point itself not counted).
@@ -105,7 +106,7 @@ pub fn scan_spacing(points: &[Vec3]) -> f64 {
     let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&sample);
     let kq = NonZeroUsize::new(K + 1).unwrap_or(NonZeroUsize::MIN);
     let mut dk: Vec<f64> = sample
-        .iter()
+        .par_iter()
         .filter_map(|p| {
             let nb = tree.nearest_n::<SquaredEuclidean>(p, kq);
             let d = f64::from(nb.last()?.distance).sqrt();
