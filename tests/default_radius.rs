@@ -67,8 +67,10 @@ fn default_radius_holds_at_0_2_m_and_30_m() {
         "{}",
         cs.defaults_note
     );
-    // The same fraction of the scene at both scales, and between D/100 and D/10.
-    assert!((rs / ds - rl / dl).abs() < 1e-3 * rs / ds, "{rs} {rl}");
+    // The same fraction of the scene at both scales (within 2 %: the spacing is measured on
+    // a sample picked by the points' coordinates, which differ between the copies), and
+    // between D/100 and D/10.
+    assert!((rs / ds - rl / dl).abs() < 0.02 * rs / ds, "{rs} {rl}");
     assert!(rs > ds / 100.0 && rs < ds / 10.0, "{rs} of {ds}");
     // The same AO at both scales (single precision of the scaled points apart).
     let (a, b) = (all_ao(&cs), all_ao(&cl));
