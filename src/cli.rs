@@ -5,6 +5,7 @@ use crate::config::{ComputeParams, Config};
 use crate::io::dataset::{PlaceOptions, PoseOverride};
 use crate::io::output::ColorMode;
 use crate::io::source::Format;
+use crate::preview::{PreviewStyle, Tone, Up};
 use crate::projection::SensorModel;
 use crate::reference::RefParams;
 use crate::sensor::ProjectionChoice;
@@ -60,7 +61,8 @@ pub struct MergeArgs {
     /// Output format [default: the input's; PTX → ply].
     #[arg(long, value_enum)]
     pub format: Option<Format>,
-    /// SSAO sampling-sphere radius r_s in metres [default: robust scene diagonal / 50].
+    /// SSAO sampling-sphere radius r_s in metres [default: sqrt(point spacing × robust
+    /// scene diagonal), within diagonal/100 and diagonal/10].
     #[arg(long)]
     pub radius: Option<f32>,
     /// Obscurance falloff distance t_max in metres [default: 2 × radius].
@@ -111,6 +113,14 @@ pub struct MergeArgs {
     /// No PNG preview per scan.
     #[arg(long)]
     pub no_preview: bool,
+    /// World axis at the top of the previews: x, y, z, -x, -y or -z (the Stanford scans: y).
+    #[arg(long, value_enum, default_value_t = Up::Z, allow_hyphen_values = true)]
+    pub up: Up,
+    /// Grey levels of the previews: `stretch` spans the 1st–99th percentile of each picture
+    /// from black to white; `linear` is grey = AO. The `ao` values and colours are not
+    /// affected.
+    #[arg(long, value_enum, default_value_t = Tone::Stretch)]
+    pub preview_tone: Tone,
     /// Overwrite existing outputs.
     #[arg(long)]
     pub force: bool,
@@ -284,7 +294,7 @@ pub struct SweepArgs {
     /// Name of the dataset in the CSV and plot title.
     #[arg(long, default_value = "dataset")]
     pub dataset: String,
-    /// SSAO radius in metres [default: robust scene diagonal / 50].
+    /// SSAO radius in metres [default: as `merge`'s].
     #[arg(long)]
     pub radius: Option<f32>,
     /// t_max in metres [default: 2 × radius]; must match the reference's.
@@ -527,6 +537,10 @@ impl MergeArgs {
             color: self.color,
             quiet: self.quiet,
             preview: !self.no_preview,
+            preview_style: PreviewStyle {
+                up: self.up,
+                tone: self.preview_tone,
+            },
             force: self.force,
             reference: self.reference,
             work_dir: self.work,

@@ -30,6 +30,8 @@ pub struct Config {
     pub quiet: bool,
     /// Write a PNG preview per scan.
     pub preview: bool,
+    /// How previews are drawn (up axis, tone).
+    pub preview_style: crate::preview::PreviewStyle,
     /// Overwrite existing outputs.
     pub force: bool,
     /// Reference directory to score the result against.

@@ -741,8 +741,9 @@ proptest! {
 proptest! {
     #![proptest_config(config(6, 4))]
 
-    /// With the default radius (scene diagonal / 50) and t_max, a rigid motion must not change
-    /// the AO either (same tolerances): the scene's size does not depend on where it is.
+    /// With the default radius (scene size and point spacing) and t_max, a rigid motion must
+    /// not change the AO either (same tolerances): the scene's size and its point spacing do
+    /// not depend on where it is.
     #[test]
     fn rigid_motion_leaves_default_radius_unchanged(
         specs in room_specs(),

@@ -359,7 +359,7 @@ fn depth_ratio_ten_thousand() {
         "only {jumps} depth jumps of 10³ between neighbours"
     );
     for est in BOTH {
-        // Default radius (robust diagonal / 50).
+        // Default radius (robust diagonal and point spacing).
         run_twice(
             &scans,
             &params(est, None, None),

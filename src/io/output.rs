@@ -1,7 +1,7 @@
-//! Writing results: the input PLY with `float ao` and grey (or modulated) colours added, and a
-//! preview picture of the AO map as the scanner saw it. Every file is written atomically.
+//! Writing PLY results: the input PLY with the AO added as `float` vertex properties for
+//! scripts, CloudCompare and MeshLab ([`ao_properties`]) and grey (or modulated) colours.
+//! Every file is written atomically. The preview pictures are [`crate::preview`]'s.
 
-use super::atomic::write_atomic;
 use super::ply::{PlyFile, PropertyKind, ScalarType};
 use crate::error::{Error, Result};
 use rayon::prelude::*;
@@ -96,9 +96,72 @@ pub fn nonfinite_properties(ply: &PlyFile) -> Vec<(String, usize)> {
         .collect()
 }
 
-/// Writes `ply` with per-vertex `ao` (one value per vertex, all finite) and colours to `path`.
-/// Non-finite values of the input's float properties are written as 0
-/// ([`nonfinite_properties`]).
+/// The vertex property CloudCompare loads as a scalar field without asking: its PLY reader
+/// takes a vertex property whose name contains `scal` as a scalar field and names it after
+/// the `scalar_` prefix, so this one appears as `ao`. A plain `ao` is left out of its list.
+pub const CLOUDCOMPARE_AO: &str = "scalar_ao";
+
+/// The vertex property MeshLab shows as per-vertex quality (its colour-by-quality filters and
+/// histogram read it); other float properties are not loaded at all.
+pub const MESHLAB_AO: &str = "quality";
+
+/// The header comment a PLY result lists its AO properties in, so that a run on a result
+/// knows which of them it may replace.
+const AO_COMMENT: &str = "mvao ao properties:";
+
+/// The header comment that lists a result's AO properties.
+pub fn ao_comment(names: &[&str]) -> String {
+    format!("{AO_COMMENT} {}", names.join(" "))
+}
+
+/// The vertex properties a result's AO is written to, with a note for each one left out.
+/// `ao` (for scripts) and [`CLOUDCOMPARE_AO`]: a float one is an earlier result and is
+/// replaced; any other type is the input's own data and stays, with the result beside it
+/// under the first free `NAME_1`, `NAME_2`…. [`MESHLAB_AO`]: added when absent, replaced when
+/// an earlier result's header comment lists it; otherwise an input's own `quality` (a
+/// scanner's confidence, say) stays and the AO is not written there.
+pub fn ao_properties(ply: &PlyFile, path: &Path) -> (Vec<String>, Vec<String>) {
+    let kind = |p: &str| ply.property_kind("vertex", p);
+    let float = |p: &str| {
+        matches!(
+            kind(p),
+            Some(PropertyKind::Scalar(ScalarType::F32 | ScalarType::F64))
+        )
+    };
+    let free = |base: &str| {
+        if kind(base).is_none() || float(base) {
+            base.to_string()
+        } else {
+            (1..)
+                .map(|k| format!("{base}_{k}"))
+                .find(|n| kind(n).is_none())
+                .unwrap_or_default()
+        }
+    };
+    let mut names = vec![free("ao"), free(CLOUDCOMPARE_AO)];
+    let mut notes = Vec::new();
+    let earlier = ply.header.comments.iter().any(|c| {
+        c.strip_prefix(AO_COMMENT)
+            .is_some_and(|l| l.split_whitespace().any(|n| n == MESHLAB_AO))
+    });
+    if kind(MESHLAB_AO).is_none() || earlier {
+        names.push(MESHLAB_AO.to_string());
+    } else {
+        notes.push(format!(
+            "{}: the input's own vertex `{MESHLAB_AO}` is kept, so MeshLab shows it, not the \
+             AO (the AO is in `{}` and `{}`)",
+            path.display(),
+            names[0],
+            names[1]
+        ));
+    }
+    (names, notes)
+}
+
+/// Writes `ply` with per-vertex AO (one value per vertex, all finite; under the names of
+/// [`ao_properties`]) and colours to `path`. Non-finite values of the input's float
+/// properties are written as 0 ([`nonfinite_properties`]). Returns what the user should know
+/// about the output.
 pub fn write_result_ply(
     ply: &PlyFile,
     ao: &[f32],
@@ -106,7 +169,7 @@ pub fn write_result_ply(
     color: ColorMode,
     comment: &str,
     path: &Path,
-) -> Result<()> {
+) -> Result<Vec<String>> {
     if ao.iter().any(|a| !a.is_finite()) {
         return Err(Error::Param(format!(
             "{}: refusing to write a non-finite ao value (internal error)",
@@ -134,22 +197,7 @@ pub fn write_result_ply(
     };
     let aof: Vec<f64> = ao.iter().map(|&a| a as f64).collect();
     let kind = |p: &str| ply.property_kind("vertex", p);
-    let float = |k: Option<PropertyKind>| {
-        matches!(
-            k,
-            Some(PropertyKind::Scalar(ScalarType::F32 | ScalarType::F64))
-        )
-    };
-    // A float `ao` is a previous result and is replaced; any other `ao` is the input's own
-    // data and stays, with the result beside it under the first free name.
-    let ao_name = if kind("ao").is_none() || float(kind("ao")) {
-        "ao".to_string()
-    } else {
-        (1..)
-            .map(|k| format!("ao_{k}"))
-            .find(|n| kind(n).is_none())
-            .unwrap_or_default()
-    };
+    let (names, notes) = ao_properties(ply, path);
     let channels = ["red", "green", "blue"];
     let present = channels.iter().filter(|c| kind(c).is_some()).count();
     let has_rgb = present == 3;
@@ -173,7 +221,10 @@ pub fn write_result_ply(
             );
         }
     }
-    let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![(&ao_name, ScalarType::F32, &aof)];
+    let mut cols: Vec<(&str, ScalarType, &[f64])> = names
+        .iter()
+        .map(|n| (n.as_str(), ScalarType::F32, aof.as_slice()))
+        .collect();
     for (k, c) in channels.into_iter().enumerate() {
         match (has_rgb, color) {
             (true, ColorMode::Keep) => {}
@@ -183,49 +234,10 @@ pub fn write_result_ply(
             _ => cols.push((c, ScalarType::U8, &greys)),
         }
     }
-    ply.write_path_with_columns(path, "vertex", &cols, &[comment.to_string()])
-}
-
-/// Largest preview side; bigger maps are box-downsampled by an integer factor.
-const MAX_PREVIEW: usize = 8192;
-
-/// Writes a grey + alpha PNG of a `width × height` map (`None` = empty pixel, transparent).
-pub fn write_preview(
-    path: &Path,
-    width: usize,
-    height: usize,
-    values: &[Option<f32>],
-    gamma: f32,
-) -> Result<()> {
-    let f = width.max(height).div_ceil(MAX_PREVIEW).max(1);
-    let (w, h) = (width.div_ceil(f).max(1), height.div_ceil(f).max(1));
-    let mut buf = vec![0u8; w * h * 2];
-    for y in 0..h {
-        for x in 0..w {
-            let (mut s, mut n) = (0.0f32, 0u32);
-            for yy in y * f..((y + 1) * f).min(height) {
-                for xx in x * f..((x + 1) * f).min(width) {
-                    if let Some(v) = values[yy * width + xx] {
-                        s += v;
-                        n += 1;
-                    }
-                }
-            }
-            if n > 0 {
-                buf[(y * w + x) * 2] = grey(s / n as f32, gamma);
-                buf[(y * w + x) * 2 + 1] = 255;
-            }
-        }
-    }
-    write_atomic(path, |out| {
-        let mut enc = png::Encoder::new(out, w as u32, h as u32);
-        enc.set_color(png::ColorType::GrayscaleAlpha);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut wr = enc.write_header().map_err(std::io::Error::other)?;
-        wr.write_image_data(&buf).map_err(std::io::Error::other)?;
-        wr.finish().map_err(std::io::Error::other)?;
-        Ok(())
-    })
+    let listed: Vec<&str> = names.iter().map(String::as_str).collect();
+    let comments = [comment.to_string(), ao_comment(&listed)];
+    ply.write_path_with_columns(path, "vertex", &cols, &comments)?;
+    Ok(notes)
 }
 
 #[cfg(test)]
@@ -264,7 +276,9 @@ mod tests {
             let p = dir.path().join(format!("{mode:?}.ply"));
             write_result_ply(&ply, &ao, 1.0, mode, "test", &p).unwrap();
             let o = PlyFile::read_path(&p).unwrap();
-            assert_eq!(o.scalar_column("vertex", "ao").unwrap(), vec![0.5, 1.0]);
+            for name in ["ao", CLOUDCOMPARE_AO, MESHLAB_AO] {
+                assert_eq!(o.scalar_column("vertex", name).unwrap(), vec![0.5, 1.0]);
+            }
             o.scalar_column("vertex", "red").unwrap()
         };
         // modulate: 200·128/255 = 100.4 → 100; 100·255/255 = 100
@@ -324,6 +338,10 @@ mod tests {
         );
         assert_eq!(o.scalar_column("vertex", "ao").unwrap(), vec![3.0, 7.0]);
         assert_eq!(o.scalar_column("vertex", "ao_1").unwrap(), vec![0.5, 1.0]);
+        assert_eq!(
+            o.scalar_column("vertex", "scalar_ao").unwrap(),
+            vec![0.5, 1.0]
+        );
         let o = run(
             &cols(&[("ao", ScalarType::F64, &[0.1, 0.2])]),
             ColorMode::Modulate,
@@ -365,19 +383,93 @@ mod tests {
         assert!(!o.has_property("vertex", "green"));
     }
 
+    /// The AO goes to `ao`, `scalar_ao` and `quality`. An input's own `quality` stays (with a
+    /// note); an earlier result's three are replaced, not duplicated.
     #[test]
-    fn preview_is_a_png() {
+    fn ao_for_cloudcompare_and_meshlab() {
         let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("a.png");
-        write_preview(
-            &p,
-            3,
-            2,
-            &[Some(1.0), None, Some(0.0), None, None, Some(0.5)],
-            1.0,
+        let xs = [0.0, 1.0];
+        let ao = [0.25f32, 0.75];
+        let own = PlyFile::from_vertex_columns(
+            &[
+                ("x", ScalarType::F32, &xs),
+                ("y", ScalarType::F32, &xs),
+                ("z", ScalarType::F32, &xs),
+                ("quality", ScalarType::F32, &[7.0, 9.0]),
+            ],
+            &[],
         )
         .unwrap();
-        let bytes = std::fs::read(&p).unwrap();
-        assert_eq!(&bytes[1..4], b"PNG");
+        let p = dir.path().join("own.ply");
+        let notes = write_result_ply(&own, &ao, 1.0, ColorMode::Keep, "t", &p).unwrap();
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(notes[0].contains("own.ply") && notes[0].contains("quality"));
+        let o = PlyFile::read_path(&p).unwrap();
+        assert_eq!(
+            o.scalar_column("vertex", "quality").unwrap(),
+            vec![7.0, 9.0]
+        );
+        assert_eq!(
+            o.scalar_column("vertex", "scalar_ao").unwrap(),
+            vec![0.25, 0.75]
+        );
+        // Its output run again: the input's quality still stays.
+        let q = dir.path().join("again.ply");
+        let notes = write_result_ply(&o, &[0.5, 0.5], 1.0, ColorMode::Keep, "t", &q).unwrap();
+        assert_eq!(notes.len(), 1);
+        let o2 = PlyFile::read_path(&q).unwrap();
+        assert_eq!(
+            o2.scalar_column("vertex", "quality").unwrap(),
+            vec![7.0, 9.0]
+        );
+        assert_eq!(o2.scalar_column("vertex", "ao").unwrap(), vec![0.5, 0.5]);
+        // A result without an own quality, run again: all three replaced in place.
+        let bare = PlyFile::from_vertex_columns(
+            &[
+                ("x", ScalarType::F32, &xs),
+                ("y", ScalarType::F32, &xs),
+                ("z", ScalarType::F32, &xs),
+            ],
+            &[],
+        )
+        .unwrap();
+        let r1 = dir.path().join("r1.ply");
+        assert!(write_result_ply(&bare, &ao, 1.0, ColorMode::Keep, "t", &r1)
+            .unwrap()
+            .is_empty());
+        let first = PlyFile::read_path(&r1).unwrap();
+        let r2 = dir.path().join("r2.ply");
+        assert!(
+            write_result_ply(&first, &[1.0, 0.0], 1.0, ColorMode::Keep, "t", &r2)
+                .unwrap()
+                .is_empty()
+        );
+        let second = PlyFile::read_path(&r2).unwrap();
+        let ei = second.element("vertex").unwrap();
+        let names: Vec<&str> = second.header.elements[ei]
+            .props
+            .iter()
+            .map(|p| p.name.as_str())
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "x",
+                "y",
+                "z",
+                "ao",
+                "scalar_ao",
+                "quality",
+                "red",
+                "green",
+                "blue"
+            ]
+        );
+        for name in ["ao", "scalar_ao", "quality"] {
+            assert_eq!(
+                second.scalar_column("vertex", name).unwrap(),
+                vec![1.0, 0.0]
+            );
+        }
     }
 }

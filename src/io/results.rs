@@ -4,7 +4,9 @@
 //! the result is a [`PointTable`] in world coordinates with colour, intensity, AO and grid.
 
 use super::dataset::Dataset;
-use super::output::{colour_step, grey, write_result_ply, ColorMode};
+use super::output::{
+    ao_comment, colour_step, grey, write_result_ply, ColorMode, CLOUDCOMPARE_AO, MESHLAB_AO,
+};
 use super::ply::{round, PlyFile, PropertyKind, ScalarType};
 use super::raw::{PointTable, RawGrid};
 use super::source::{Container, Format};
@@ -166,14 +168,14 @@ pub fn write(
                 } else {
                     ply.as_ref()
                 };
-                write_result_ply(
+                return write_result_ply(
                     ply,
                     &per_vertex,
                     opts.gamma,
                     opts.color,
                     comment,
                     &unit.path,
-                )
+                );
             }
             Container::E57(e) => {
                 let per_record: Vec<Vec<f32>> = unit
@@ -207,7 +209,7 @@ pub fn write(
             .map(|&i| table_of(ds, i, &ao[i], opts))
             .collect::<Result<_>>()?;
         match unit.format {
-            Format::Ply => write_table_ply(&tables[0], comment, &unit.path).map(|()| Vec::new()),
+            Format::Ply => write_table_ply(&tables[0], comment, &unit.path),
             Format::E57 => {
                 super::e57_file::write_table_e57(&tables, &unit.path).map(|()| Vec::new())
             }
@@ -433,8 +435,11 @@ fn ply_intensity(ply: &PlyFile) -> Option<Vec<f32>> {
 }
 
 /// Writes a table as a binary little-endian PLY: double x y z (world), uchar colour, float
-/// intensity and ao, int row/col when gridded, and the extra fields as doubles.
-pub fn write_table_ply(t: &PointTable, comment: &str, path: &Path) -> Result<()> {
+/// intensity and AO (as `ao`, `scalar_ao` and `quality`: [`super::output::ao_properties`]),
+/// int row/col when gridded, and the extra fields as doubles. An extra field named
+/// `quality` is the input's own and stays (the AO then goes to `ao` and `scalar_ao` only).
+/// Returns what the user should know about the output.
+pub fn write_table_ply(t: &PointTable, comment: &str, path: &Path) -> Result<Vec<String>> {
     let n = t.len();
     let world: Vec<DVec3> = (0..n).map(|k| t.world(k)).collect();
     let xs: Vec<f64> = world.iter().map(|p| p.x).collect();
@@ -461,11 +466,20 @@ pub fn write_table_ply(t: &PointTable, comment: &str, path: &Path) -> Result<()>
             i.iter().map(|&v| v as f64).collect(),
         ));
     }
-    cols.push((
-        "ao".into(),
-        ScalarType::F32,
-        t.ao.iter().map(|&v| v as f64).collect(),
-    ));
+    let ao: Vec<f64> = t.ao.iter().map(|&v| v as f64).collect();
+    let mut notes = Vec::new();
+    let own_quality = t.extra.iter().any(|(n, _)| n == MESHLAB_AO);
+    for name in ["ao", CLOUDCOMPARE_AO, MESHLAB_AO] {
+        if name == MESHLAB_AO && own_quality {
+            notes.push(format!(
+                "{}: the input's own `{MESHLAB_AO}` is kept, so MeshLab shows it, not the AO \
+                 (the AO is in `ao` and `{CLOUDCOMPARE_AO}`)",
+                path.display()
+            ));
+            continue;
+        }
+        cols.push((name.into(), ScalarType::F32, ao.clone()));
+    }
     if let Some(g) = &t.grid {
         cols.push((
             "row".into(),
@@ -487,8 +501,14 @@ pub fn write_table_ply(t: &PointTable, comment: &str, path: &Path) -> Result<()>
         .iter()
         .map(|(n, t, v)| (n.as_str(), *t, v.as_slice()))
         .collect();
-    let ply = PlyFile::from_vertex_columns(&refs, &[comment.to_string()])?;
-    ply.write_path(path)
+    let listed: Vec<&str> = ["ao", CLOUDCOMPARE_AO, MESHLAB_AO]
+        .into_iter()
+        .filter(|n| !(own_quality && *n == MESHLAB_AO))
+        .collect();
+    let comments = [comment.to_string(), ao_comment(&listed)];
+    let ply = PlyFile::from_vertex_columns(&refs, &comments)?;
+    ply.write_path(path)?;
+    Ok(notes)
 }
 
 #[cfg(test)]

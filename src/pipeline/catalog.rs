@@ -26,6 +26,8 @@ pub struct Catalog {
     pub scans: Vec<CatalogScan>,
     /// A subsample of every scan (the points the default radius is measured on).
     pub samples: Vec<Scan>,
+    /// Per scan: (point spacing, points), for the default radius; empty when a radius is given.
+    pub spacings: Vec<(f64, usize)>,
     /// Occupied cells of every scan, for the pair test.
     pub occupancy: Vec<Occupancy>,
     /// Size of the largest input file in bytes.
@@ -206,6 +208,7 @@ pub fn from_scans(scans: &[Scan]) -> Result<Catalog> {
     Ok(Catalog {
         scans: cat,
         samples: scans.iter().map(sample).collect(),
+        spacings: Vec::new(),
         occupancy,
         max_file_bytes: 0,
         warnings: Vec::new(),
@@ -249,6 +252,7 @@ pub fn from_files<'a>(
     obs.stage("catalog", cfg.scans.len() as u64);
     let mut cat: Vec<CatalogScan> = Vec::new();
     let mut samples = Vec::new();
+    let mut spacings = Vec::new();
     let mut occupancy = Vec::new();
     let mut warnings = Vec::new();
     let mut max_file_bytes = 0u64;
@@ -276,6 +280,9 @@ pub fn from_files<'a>(
             let c = entry(s, fi, k, true);
             occupancy.push(Occupancy::of(s, bounds_diagonal(&c)));
             samples.push(sample(s));
+            if cfg.compute.radius.is_none() {
+                spacings.push((crate::radius::scan_spacing(&s.points), s.len()));
+            }
             cat.push(c);
         }
         let wanted = cfg.only.is_empty() || pf.scans.iter().any(|s| cfg.only.contains(&s.name));
@@ -304,6 +311,7 @@ pub fn from_files<'a>(
     let catalog = Catalog {
         scans: cat,
         samples,
+        spacings,
         occupancy,
         max_file_bytes,
         warnings,

@@ -20,6 +20,7 @@ use crate::io::dataset::Placer;
 use crate::merge::{MergeParams, MergeStats};
 use crate::products::MergeMaps;
 use crate::progress::{Bars, Observer};
+use crate::radius::SceneScale;
 use crate::report::{Parameters, Plan, Report, ScanReport, Totals};
 use crate::scan::Scan;
 use crate::site::Pairs;
@@ -67,7 +68,10 @@ pub struct Computed {
 /// [`MemoryStore`], without writing.
 pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Result<Computed> {
     let cat = catalog::from_scans(scans)?;
-    let (sp, mut note) = ssao_params(prm, || robust_diagonal(&cat.samples))?;
+    let (sp, mut note) = ssao_params(prm, || SceneScale {
+        diagonal: robust_diagonal(&cat.samples),
+        spacing: crate::radius::spacing_of(scans),
+    })?;
     let n = scans.len();
     let need = vec![true; n];
     let mut store = MemoryStore::new(n);
@@ -351,7 +355,10 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
     let (mut cat, mut files) = catalog::from_files(cfg, &placer, budget, obs)?;
     let (refs, planned_outputs) = check_before_work(cfg, &cat)?;
     let prm = &cfg.compute;
-    let (sp, note) = ssao_params(prm, || robust_diagonal(&cat.samples))?;
+    let (sp, note) = ssao_params(prm, || SceneScale {
+        diagonal: robust_diagonal(&cat.samples),
+        spacing: crate::radius::combined_spacing(&cat.spacings),
+    })?;
     cat.samples = Vec::new();
     // The report is written last and marks a complete set: a rerun over an earlier one drops
     // the old report first, so a run that stops half way does not leave new outputs beside

@@ -5,6 +5,7 @@
 use crate::config::ComputeParams;
 use crate::error::{Error, Result};
 use crate::merge::MergeParams;
+use crate::radius::SceneScale;
 use crate::report::{CatalogScan, Plan};
 use crate::scan::occupancy::Occupancy;
 use crate::scan::Scan;
@@ -61,26 +62,26 @@ pub fn robust_diagonal(scans: &[Scan]) -> f64 {
     }
 }
 
-/// The SSAO parameters of a run, with a note on how the defaults were derived: radius =
-/// robust scene diagonal / 50 (`diag` is only called when no radius is given), t_max =
-/// 2 × radius.
+/// The SSAO parameters of a run, with a note on how the defaults were derived: radius from
+/// the scene's size and point spacing ([`crate::radius`]; `scale` is only called when no
+/// radius is given), t_max = 2 × radius.
 pub fn ssao_params(
     prm: &ComputeParams,
-    diag: impl FnOnce() -> f64,
+    scale: impl FnOnce() -> SceneScale,
 ) -> Result<(SsaoParams, String)> {
     let mut note = String::new();
     let radius = match prm.radius {
         Some(r) => r,
         None => {
-            let d = diag();
-            let r = (d / 50.0) as f32;
-            if !(r > 0.0 && r.is_finite()) {
+            let sc = scale();
+            let Some((r, how)) = sc.default_radius() else {
                 return Err(Error::Param(format!(
-                    "no default SSAO radius: the scans' robust diagonal is {d} m (every point at \
-                     one place, or coordinates beyond single precision); give --radius in metres"
+                    "no default SSAO radius: the scans' robust diagonal is {} m (every point at \
+                     one place, or coordinates beyond single precision); give --radius in metres",
+                    sc.diagonal
                 )));
-            }
-            note += &format!("radius = scene diagonal {d:.4} m / 50 = {r:.4} m; ");
+            };
+            note += &how;
             r
         }
     };

@@ -7,9 +7,7 @@ use super::catalog::Opened;
 use super::merge::{Merged, Sink};
 use crate::config::Config;
 use crate::error::{Error, Result};
-use crate::gbuffer::EMPTY;
 use crate::io::dataset::Dataset;
-use crate::io::output::write_preview;
 use crate::io::results::{self, WriteOptions};
 use crate::io::source::Format;
 use crate::products::MergeMaps;
@@ -246,18 +244,14 @@ impl Sink for Writer<'_> {
     fn scan(&mut self, s: &Scan, m: &Merged, own: &MergeMaps, sum: &Summary) -> Result<()> {
         let ao = &m.ao;
         if self.cfg.preview {
-            let g = &own.gbuf;
-            let vals: Vec<Option<f32>> = g
-                .point
-                .iter()
-                .map(|&p| (p != EMPTY).then(|| ao[p as usize]))
-                .collect();
-            write_preview(
+            crate::preview::write_scan_preview(
                 &self.cfg.out_dir.join(format!("{}.png", s.name)),
-                g.width,
-                g.height,
-                &vals,
+                &own.gbuf,
+                &own.projection,
+                s.pose,
+                ao,
                 self.cfg.gamma,
+                self.cfg.preview_style,
             )?;
         }
         let (mn, mx, mean) = ao_range(ao);
