@@ -78,7 +78,8 @@ pub fn read_alignment_with(path: &Path, allow_scale: bool) -> Result<Alignment> 
 }
 
 /// Checks a pose: [`check_rigid`] unless `allow_scale`, in which case any finite affine map
-/// with a positive determinant is accepted unchanged (see [`split_scale`]).
+/// with a positive determinant is accepted, its bottom row made exactly `(0, 0, 0, 1)` (see
+/// [`split_scale`]).
 pub fn check_pose(m: DMat4, path: &Path, what: &str, allow_scale: bool) -> Result<DMat4> {
     if !allow_scale {
         return check_rigid(m, path, what);
@@ -96,12 +97,32 @@ pub fn check_pose(m: DMat4, path: &Path, what: &str, allow_scale: bool) -> Resul
         ));
     }
     let det = DMat3::from_mat4(m).determinant();
-    if !(det > 1e-12) {
+    if !(det > 1e-12 && det.is_finite()) {
         return Err(Error::align(
             path,
             format!(
                 "pose of '{what}' is singular or a reflection (determinant {det:.6e}); \
                  --allow-scale accepts scale and shear only"
+            ),
+        ));
+    }
+    // The bottom row was within tolerance of (0, 0, 0, 1): make it exact, as `check_rigid`
+    // does, so that no trace of a projective map is carried into the transforms.
+    let mut m = m;
+    for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
+        col.w = 0.0;
+    }
+    m.w_axis.w = 1.0;
+    // The pose is applied as a rotation plus a stretch of the points (`split_scale`): a
+    // stretch so extreme that the split fails would put NaN or a non-rotation in the pose.
+    let (rigid, stretch) = split_scale(m);
+    let dev = orthogonality_error(DMat3::from_mat4(rigid));
+    if !(stretch.is_finite() && dev <= 1e-9) {
+        return Err(Error::align(
+            path,
+            format!(
+                "pose of '{what}' cannot be split into a rotation and a stretch (its scales \
+                 are too far apart or beyond double precision)"
             ),
         ));
     }
@@ -419,11 +440,21 @@ fn orthogonality_error(r: DMat3) -> f64 {
         .max_element()
 }
 
-/// Nearest rotation to a nearly orthonormal `r` with positive determinant: Newton iteration for
-/// the polar factor, `R ← ½(R + R⁻ᵀ)`, which converges quadratically.
+/// Nearest rotation to `r` (positive determinant): the polar factor by the scaled Newton
+/// iteration `R ← ½(γR + (γR)⁻ᵀ)`, which converges quadratically.
 fn nearest_rotation(mut r: DMat3) -> DMat3 {
-    for _ in 0..20 {
-        let next = (r + r.inverse().transpose()) * 0.5;
+    for _ in 0..100 {
+        // Scaled by |det|^(-1/3) (Higham), the iteration converges in a few steps whatever
+        // the scale of a pose `--allow-scale` let in; unscaled it only halves a large scale
+        // per step. Near a rotation the factor is 1.
+        let det = r.determinant();
+        let g = if det.is_finite() && det > 0.0 {
+            det.cbrt().recip()
+        } else {
+            1.0
+        };
+        let gr = r * g;
+        let next = (gr + gr.inverse().transpose()) * 0.5;
         let change = (next - r)
             .to_cols_array()
             .iter()
