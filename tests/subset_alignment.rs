@@ -248,7 +248,12 @@ fn a_broken_alignment_beside_the_scans() {
     let out = d.path().join("out");
     let err = merge_fails(
         &["merge", "-o", &s(&out), &s(&a), &s(&b)],
-        &["poses.json", "expected a JSON object"],
+        &[
+            "poses.json",
+            "expected a JSON object",
+            "found beside the scans",
+            "--align",
+        ],
     );
     assert!(!err.contains("a.ply") || err.contains("\"a.ply\""), "{err}");
 

@@ -271,6 +271,16 @@ impl Placer {
     /// of them.
     fn alignment_problem(&mut self, needs: &[usize], e: Error, blocks: bool) -> Result<()> {
         if blocks && self.mode == Mode::Run {
+            let e = match e {
+                Error::Align { path, msg } if self.opts.align.is_none() => Error::Align {
+                    path,
+                    msg: format!(
+                        "{msg} (alignment file found beside the scans: fix it, choose another \
+                         with --align, or give the poses with --pose)"
+                    ),
+                },
+                e => e,
+            };
             return Err(self.own_problem_first(needs, e));
         }
         let why = match self.mode {
