@@ -15,6 +15,9 @@ use mvao::io::scan_ply::scan_from_ply;
 use mvao::Error;
 use std::path::{Path, PathBuf};
 
+pub mod scans;
+pub use scans::{check_e57, check_las, check_matrix, check_ptx};
+
 /// Elements with more rows than this are not given to the harness's own per-row allocations
 /// (masks, value columns); the library still reads them.
 pub const MAX_HARNESS_ROWS: usize = 1 << 16;
