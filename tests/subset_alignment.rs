@@ -275,6 +275,21 @@ fn a_broken_alignment_beside_the_scans() {
         &["merge", "-o", &s(&out), &s(&a), &s(&cut)],
         &["cut.ply", "truncated"],
     );
+    // So is one whose sidecar is not a matrix either.
+    std::fs::write(d.path().join("cut.txt"), "not a matrix").unwrap();
+    merge_fails(
+        &["merge", "-o", &s(&out), &s(&a), &s(&cut)],
+        &["cut.ply", "truncated"],
+    );
+    let e = open(&[a.clone(), b.clone(), cut.clone()]).unwrap_err();
+    assert!(e.to_string().contains("truncated"), "{e}");
+    std::fs::remove_file(&cut).unwrap();
+    let c = small_scan(d.path(), "cut.ply");
+    let e = open(&[a.clone(), c]).unwrap_err().to_string();
+    assert!(
+        e.contains("cut.txt") && e.contains("not a 4×4 matrix"),
+        "{e}"
+    );
     assert!(!out.exists());
 }
 

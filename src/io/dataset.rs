@@ -293,10 +293,11 @@ impl Placer {
         Ok(())
     }
 
-    /// A pose problem of file `i`: an error in a run, a note when describing.
+    /// A pose problem of file `i` (its sidecars): an error in a run, after any problem of the
+    /// file itself; a note when describing.
     fn excuse(&mut self, i: usize, e: Error) -> Result<()> {
         match self.mode {
-            Mode::Run => Err(e),
+            Mode::Run => Err(self.own_problem_first(&[i], e)),
             Mode::Describe => {
                 self.notes[i].push(format!("{e}; described as it is"));
                 Ok(())
