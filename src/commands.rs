@@ -51,6 +51,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             } else {
                 print!("{}", info.to_text());
             }
+            info.status()?;
             Ok(())
         }
         Command::Reference(args) => {

@@ -2,7 +2,7 @@
 //! where it came from, grid, the sensor model it would fit, world bounds, and which other
 //! scans it overlaps. Reads and fits, computes no AO.
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::io::dataset::{Dataset, PlaceOptions};
 use crate::sensor::{self, ProjectionChoice};
 use glam::DVec3;
@@ -56,17 +56,30 @@ pub struct Info {
     pub warnings: Vec<String>,
     /// Per scan.
     pub scans: Vec<ScanInfo>,
+    /// Files that could not be read and scans no sensor model fits, each with what is wrong
+    /// (naming the file or scan).
+    pub problems: Vec<String>,
 }
 
-/// Describes the scans of `paths`.
+/// Describes the scans of `paths`. It never refuses to describe a file for a placement
+/// problem (an alignment that does not name it, a broken alignment or sidecar): that is a
+/// warning and the scan is described as it is. A file that cannot be read, or a scan no sensor
+/// model fits, is listed in [`Info::problems`] and the others are still described.
 pub fn describe(paths: &[PathBuf], place: &PlaceOptions, choice: ProjectionChoice) -> Result<Info> {
-    let ds = Dataset::open(paths, place, &|| {})?;
+    let (ds, unreadable) = Dataset::describe(paths, place)?;
+    let mut problems: Vec<String> = unreadable.iter().map(ToString::to_string).collect();
     let mut scans = Vec::with_capacity(ds.scans.len());
     let bounds: Vec<(DVec3, DVec3)> = ds.scans.iter().map(crate::pipeline::world_bounds).collect();
     for (i, s) in ds.scans.iter().enumerate() {
         let (fi, k) = ds.origin[i];
         let f = &ds.files[fi];
-        let setup = sensor::setup(s, choice)?;
+        let setup = match sensor::setup(s, choice) {
+            Ok(setup) => setup,
+            Err(e) => {
+                problems.push(e.to_string());
+                continue;
+            }
+        };
         let p = &setup.projection;
         let b = bounds[i];
         // Boxes meeting within 1 ‰ of their size (rounding) count as overlapping.
@@ -110,10 +123,24 @@ pub fn describe(paths: &[PathBuf], place: &PlaceOptions, choice: ProjectionChoic
         alignment: ds.alignment.map(|a| a.display().to_string()),
         warnings: ds.warnings,
         scans,
+        problems,
     })
 }
 
 impl Info {
+    /// The exit status of `mvao info`: an error when something could not be described (the
+    /// problem itself when there is one), after everything else was.
+    pub fn status(&self) -> Result<()> {
+        match self.problems.as_slice() {
+            [] => Ok(()),
+            [one] => Err(Error::Param(one.clone())),
+            [first, rest @ ..] => Err(Error::Param(format!(
+                "{first} (and {} more problems, listed above)",
+                rest.len()
+            ))),
+        }
+    }
+
     /// A human-readable report, one block per scan.
     pub fn to_text(&self) -> String {
         let mut o = String::new();
@@ -122,6 +149,9 @@ impl Info {
         }
         for w in &self.warnings {
             let _ = writeln!(o, "warning: {w}");
+        }
+        for p in &self.problems {
+            let _ = writeln!(o, "error: {p}");
         }
         for s in &self.scans {
             let _ = writeln!(o, "{} ({}, {})", s.name, s.file, s.format);

@@ -14,8 +14,12 @@
 #[path = "../fuzz/src/lib.rs"]
 mod fuzz_checks;
 
-use fuzz_checks::{check_align, check_ply, check_ply_structured, ply_from_structure};
-use mvao::io::align::read_alignment;
+use fuzz_checks::{
+    check_align, check_e57, check_las, check_matrix, check_ply, check_ply_structured, check_ptx,
+    ply_from_structure,
+};
+use mvao::io::align::{read_alignment, read_matrix_file, split_scale};
+use mvao::io::las_file::read_las;
 use mvao::io::ply::PlyFile;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -169,6 +173,82 @@ fn align_conf_many_entries_matching_not_quadratic() {
     within(Duration::from_secs(4), "80 000 bmesh entries", || {
         check_align("conf", s.as_bytes())
     });
+}
+
+/// `pose_matrix` (found by the target's check on a hand-made input while it was written): with
+/// `--allow-scale`, a matrix whose scale is beyond double precision (`1e308` on the diagonal)
+/// was accepted, because its determinant overflowed to infinity, and splitting it into a
+/// rotation and a stretch gave NaN; a scale of 1e12 was split into a "rotation" still scaled,
+/// because the polar iteration stopped after 20 halvings. The iteration is now scaled by the
+/// determinant, and a pose that cannot be split is an error naming the file.
+#[test]
+fn pose_matrix_extreme_scale_split() {
+    check_matrix(b"\x011e308 0 0 0 0 1e308 0 0 0 0 1e308 0 0 0 0 1");
+    let scratch = fuzz_checks::Scratch::new("regr-split");
+    let p = scratch.file("scan.txt");
+    std::fs::write(&p, "1e308 0 0 0\n0 1e308 0 0\n0 0 1e308 0\n0 0 0 1\n").unwrap();
+    let e = read_matrix_file(&p, "scan", true).unwrap_err().to_string();
+    assert!(e.starts_with(&p.display().to_string()), "{e}");
+    std::fs::write(&p, "1e200 0 0 0\n0 1 0 0\n0 0 1e-200 0\n0 0 0 1\n").unwrap();
+    let e = read_matrix_file(&p, "scan", true).unwrap_err().to_string();
+    assert!(
+        e.contains("cannot be split into a rotation and a stretch"),
+        "{e}"
+    );
+    // Large and small uniform scales with a rotation split exactly.
+    for k in [1e-3, 1e6, 1e12] {
+        let (c, s) = (0.6 * k, 0.8 * k);
+        std::fs::write(
+            &p,
+            format!("{c} {} 0 1\n{s} {c} 0 2\n0 0 {k} 3\n0 0 0 1\n", -s),
+        )
+        .unwrap();
+        let m = read_matrix_file(&p, "scan", true).unwrap();
+        let (rigid, stretch) = split_scale(m);
+        fuzz_checks::assert_rigid(rigid, "scan");
+        assert!((rigid.x_axis.x - 0.6).abs() < 1e-12, "{rigid:?}");
+        assert!((stretch.x_axis.x / k - 1.0).abs() < 1e-12, "{stretch:?}");
+        check_matrix(&[&[1u8][..], std::fs::read(&p).unwrap().as_slice()].concat());
+    }
+}
+
+/// `las_parse`: a LAS 1.4 header whose first EVLR starts beyond what a seek can reach
+/// (byte 13 565 215 727 793 863 655) failed as an operating-system error, "Invalid argument
+/// (os error 22)", instead of a format error saying what is wrong. The EVLR start (and the
+/// LAS 1.3 waveform start) is now checked against the file's size; it is ignored when the
+/// header counts no EVLR.
+#[test]
+fn las_parse_evlr_start_beyond_the_file() {
+    check_las(include_bytes!(
+        "../fuzz/regressions/las_parse/evlr-start-beyond-seek-range"
+    ));
+    let seed = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/las_parse/seed-las14-f8"),
+    )
+    .unwrap();
+    // The harness's first byte chooses the extension; the LAS header follows.
+    let file = &seed[1..];
+    let scratch = fuzz_checks::Scratch::new("regr-evlr");
+    let p = scratch.file("s.las");
+    for (start, count, ok) in [
+        (u64::MAX, 1u32, false),
+        (1 << 40, 2, false),
+        (u64::MAX, 0, true),
+    ] {
+        let mut b = file.to_vec();
+        b[235..243].copy_from_slice(&start.to_le_bytes());
+        b[243..247].copy_from_slice(&count.to_le_bytes());
+        check_las(&[&[0u8][..], &b].concat());
+        std::fs::write(&p, &b).unwrap();
+        match read_las(&p) {
+            Ok(l) => assert!(ok && l.len() == 5, "{start} {count}"),
+            Err(e) => {
+                assert!(!ok, "{e}");
+                assert!(matches!(e, mvao::Error::Format { .. }), "{e:?}");
+                assert!(e.to_string().contains("past the end of the file"), "{e}");
+            }
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -408,4 +488,176 @@ fn align_json_stored_and_nasty_inputs() {
         check_align("json", c.as_bytes());
     }
     check_align("json", b"{\"\xff\": [1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1]}");
+}
+
+#[test]
+fn ptx_parse_stored_and_nasty_inputs() {
+    let n = run_stored("ptx_parse", check_ptx);
+    assert!(n > 0, "no stored inputs found under fuzz/");
+    let header = "1\n2\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+    let cases: Vec<String> = vec![
+        String::new(),
+        "\n\n \r\n".into(),
+        "\u{feff}".into(),
+        "1\n".into(),
+        "1\n1\n".into(),
+        format!("{header}1 2 3 0.5\n4 5 6 0.5\n"),
+        format!("{header}1 2 3 0.5 1 2 3\n4 5 6 0.5 1 2 3\n"),
+        // Too few and too many points, a wrong field count, colours out of range.
+        format!("{header}1 2 3 0.5\n"),
+        format!("{header}1 2 3 0.5\n4 5 6 0.5\n7 8 9 0.5\n"),
+        format!("{header}1 2 3\n4 5 6 0.5\n"),
+        format!("{header}1 2 3 0.5 256 0 0\n4 5 6 0.5 0 0 0\n"),
+        format!("{header}1 2 3 0.5 -1 0 0\n4 5 6 0.5 0 0 0\n"),
+        // Non-finite and huge values in points and in the matrix.
+        format!("{header}nan 2 3 0.5\ninf 5 6 0.5\n"),
+        format!("{header}1e308 1e308 1e308 0.5\n-1e308 0 0 0.5\n"),
+        format!("{header}1e-320 0 0 0.5\n0 0 0 0.5\n"),
+        header.replace("1 0 0 0\n0 1 0 0", "2 0 0 0\n0 1 0 0") + "1 2 3 0.5\n4 5 6 0.5\n",
+        header.replace("0 0 0 1\n", "0 0 0 nan\n") + "1 2 3 0.5\n4 5 6 0.5\n",
+        header.replace("0 0 0 1\n", "1e308 0 0 1\n") + "1 2 3 0.5\n4 5 6 0.5\n",
+        header.replace("1 0 0 0\n", "-1 0 0 0\n") + "1 2 3 0.5\n4 5 6 0.5\n",
+        // Huge, zero and overflowing sizes.
+        header.replacen("1\n2\n", "4294967295\n4294967295\n", 1),
+        header.replacen("1\n2\n", "0\n0\n", 1),
+        header.replacen("1\n2\n", "0\n5\n", 1) + "1 2 3 0.5\n",
+        header.replacen("1\n2\n", "4294967296\n1\n", 1),
+        header.replacen("1\n2\n", "-1\n2\n", 1),
+        // Two blocks, the second cut short in its header and in its points.
+        format!("{header}1 2 3 0.5\n4 5 6 0.5\n{header}1 2 3 0.5\n"),
+        format!("{header}1 2 3 0.5\n4 5 6 0.5\n1\n2\n0 0 0\n"),
+        // Every point without a return.
+        format!("{header}0 0 0 0.5\n0 0 0 0.5\n"),
+        // All points at the scanner but one within 1e-12 m.
+        format!("{header}1e-12 0 0 0.5\n0 0 0 0.5\n"),
+    ];
+    for c in &cases {
+        check_ptx(c.as_bytes());
+    }
+    check_ptx(
+        b"1\n1\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n\xff 2 3 0.5\n",
+    );
+}
+
+#[test]
+fn las_parse_stored_and_nasty_inputs() {
+    let n = run_stored("las_parse", check_las);
+    assert!(n > 0, "no stored inputs found under fuzz/");
+    for (_, seed) in inputs("corpus", "las_parse") {
+        // Every prefix of a seed (a truncated file), as LAS and as LAZ.
+        for cut in (0..seed.len()).step_by(7) {
+            let mut b = seed[..cut].to_vec();
+            check_las(&b);
+            if let Some(first) = b.first_mut() {
+                *first ^= 1;
+                check_las(&b);
+            }
+        }
+        // Each header byte set to 0xff.
+        for at in 1..seed.len().min(400) {
+            let mut b = seed.clone();
+            b[at] = 0xff;
+            check_las(&b);
+        }
+    }
+    check_las(b"");
+    check_las(b"\0LASF");
+    check_las(b"\x01LASF");
+}
+
+#[test]
+fn e57_parse_stored_and_nasty_inputs() {
+    let n = run_stored("e57_parse", check_e57);
+    assert!(n > 0, "no stored inputs found under fuzz/");
+    for (_, seed) in inputs("corpus", "e57_parse") {
+        // Truncated at every 97th byte, and each byte of the file header and of the XML
+        // section's start flipped (checksums are recomputed, so the reader sees the damage).
+        for cut in (0..seed.len()).step_by(97) {
+            check_e57(&seed[..cut]);
+        }
+        for at in (0..seed.len()).step_by(13) {
+            let mut b = seed.clone();
+            b[at] ^= 0x5a;
+            check_e57(&b);
+        }
+    }
+    check_e57(b"");
+    check_e57(b"ASTM-E57");
+    // The checksum helpers are each other's inverse on whole pages.
+    let data: Vec<u8> = (0..3000u32).map(|i| (i * 7 % 251) as u8).collect();
+    let paged = fuzz_checks::scans::e57_with_checksums(&data);
+    assert_eq!(paged.len(), 3 * 1024);
+    assert_eq!(
+        &fuzz_checks::scans::e57_without_checksums(&paged)[..3000],
+        &data[..]
+    );
+}
+
+#[test]
+fn align_aln_stored_and_nasty_inputs() {
+    let n = run_stored("align_aln", |b| check_align("aln", b));
+    assert!(n > 0, "no stored inputs found under fuzz/");
+    let id = "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+    let cases: Vec<String> = vec![
+        String::new(),
+        "0\n".into(),
+        "-1\n".into(),
+        "18446744073709551616\n".into(),
+        "18446744073709551615\na.ply\n".into(),
+        "1\n".into(),
+        "1\na.ply\n".into(),
+        format!("1\na.ply\n#\n{id}"),
+        format!("1\na.ply\n{id}0\n"),
+        format!("2\na.ply\n#\n{id}a.ply\n#\n{id}0\n"),
+        format!("2\na.ply\n#\n{id}./a.ply\n#\n{id}0\n"),
+        format!("1\na.ply\n#\n1 0 0 0 0 1 0 0\n0 0 1 0 0 0 0 1\n"),
+        format!("1\na.ply\n#\n1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1 9\n"),
+        "1\na.ply\n#\n2 0 0 0\n0 2 0 0\n0 0 2 0\n0 0 0 1\n".into(),
+        "1\na.ply\n#\nnan 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n".into(),
+        "1\na.ply\n#\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 1 1\n".into(),
+        "1\n#\n#\n#\n".into(),
+        format!("1\n\u{0}\n#\n{id}"),
+    ];
+    for c in &cases {
+        check_align("aln", c.as_bytes());
+    }
+    check_align(
+        "aln",
+        b"1\n\xff.ply\n#\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+    );
+}
+
+#[test]
+fn pose_matrix_stored_and_nasty_inputs() {
+    let n = run_stored("pose_matrix", check_matrix);
+    assert!(n > 0, "no stored inputs found under fuzz/");
+    let cases: &[&str] = &[
+        "",
+        "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1",
+        "1,0,0,0;0,1,0,0;0,0,1,0;0,0,0,1",
+        "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0",
+        "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1 1",
+        "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1 # trailing comment",
+        "# only a comment",
+        "2 0 0 0 0 2 0 0 0 0 2 0 0 0 0 1",
+        "0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 1",
+        "-1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1",
+        "1 1e308 0 0 0 1 0 0 0 0 1 0 0 0 0 1",
+        "1e308 0 0 0 0 1e308 0 0 0 0 1e308 0 0 0 0 1",
+        "1e-300 0 0 0 0 1e-300 0 0 0 0 1e-300 0 0 0 0 1",
+        "1 0 0 0 0 1 0 0 0 0 1 0 0 0 1e-10 1",
+        "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1.0000000001",
+        "nan 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1",
+        "1 0 0 inf 0 1 0 0 0 0 1 0 0 0 0 1",
+        "1 2 0 0 0 1 0 0 0 0 1 0 0 0 0 1",
+    ];
+    for c in cases {
+        for scale in [0u8, 1] {
+            let mut b = vec![scale];
+            b.extend_from_slice(c.as_bytes());
+            check_matrix(&b);
+        }
+    }
+    check_matrix(&[]);
+    check_matrix(b"\x00\xff\xfe");
 }

@@ -9,11 +9,14 @@
 //! and names the file.
 
 use glam::{DMat3, DMat4, DVec4};
-use mvao::io::align::{check_rigid, poses_for_scans, read_alignment};
+use mvao::io::align::{check_rigid, match_scans, poses_for_scans, read_alignment};
 use mvao::io::ply::{ElementData, ElementDef, Encoding, PlyFile, PropertyKind, ScalarType};
 use mvao::io::scan_ply::scan_from_ply;
 use mvao::Error;
 use std::path::{Path, PathBuf};
+
+pub mod scans;
+pub use scans::{check_e57, check_las, check_matrix, check_ptx};
 
 /// Elements with more rows than this are not given to the harness's own per-row allocations
 /// (masks, value columns); the library still reads them.
@@ -892,8 +895,12 @@ pub fn check_align(ext: &str, bytes: &[u8]) {
         let mut extra = scans.clone();
         extra.push(scratch.dir().join("no such scan \u{1}.ply"));
         assert!(poses_for_scans(&al, &extra).is_err());
-        if scans.len() > 1 {
-            assert!(poses_for_scans(&al, &scans[1..]).is_err());
+        let found = match_scans(&al, &extra).expect("match_scans with one unnamed scan");
+        assert!(found.last() == Some(&None), "an unnamed scan got a pose");
+        // Part of a site: every scan but the first, each with its own entry's pose.
+        let part = poses_for_scans(&al, &scans[1..]).expect("a subset of the entries");
+        for (p, e) in part.iter().zip(&al.entries[1..]) {
+            assert!(*p == e.pose, "pose of '{}' is not its entry's", e.file);
         }
     }
 }

@@ -78,7 +78,8 @@ pub fn read_alignment_with(path: &Path, allow_scale: bool) -> Result<Alignment> 
 }
 
 /// Checks a pose: [`check_rigid`] unless `allow_scale`, in which case any finite affine map
-/// with a positive determinant is accepted unchanged (see [`split_scale`]).
+/// with a positive determinant is accepted, its bottom row made exactly `(0, 0, 0, 1)` (see
+/// [`split_scale`]).
 pub fn check_pose(m: DMat4, path: &Path, what: &str, allow_scale: bool) -> Result<DMat4> {
     if !allow_scale {
         return check_rigid(m, path, what);
@@ -96,12 +97,32 @@ pub fn check_pose(m: DMat4, path: &Path, what: &str, allow_scale: bool) -> Resul
         ));
     }
     let det = DMat3::from_mat4(m).determinant();
-    if !(det > 1e-12) {
+    if !(det > 1e-12 && det.is_finite()) {
         return Err(Error::align(
             path,
             format!(
                 "pose of '{what}' is singular or a reflection (determinant {det:.6e}); \
                  --allow-scale accepts scale and shear only"
+            ),
+        ));
+    }
+    // The bottom row was within tolerance of (0, 0, 0, 1): make it exact, as `check_rigid`
+    // does, so that no trace of a projective map is carried into the transforms.
+    let mut m = m;
+    for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
+        col.w = 0.0;
+    }
+    m.w_axis.w = 1.0;
+    // The pose is applied as a rotation plus a stretch of the points (`split_scale`): a
+    // stretch so extreme that the split fails would put NaN or a non-rotation in the pose.
+    let (rigid, stretch) = split_scale(m);
+    let dev = orthogonality_error(DMat3::from_mat4(rigid));
+    if !(stretch.is_finite() && dev <= 1e-9) {
+        return Err(Error::align(
+            path,
+            format!(
+                "pose of '{what}' cannot be split into a rotation and a stretch (its scales \
+                 are too far apart or beyond double precision)"
             ),
         ));
     }
@@ -177,9 +198,9 @@ pub fn check_one_sidecar(scan: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Looks for alignment files (`.conf`, `.mlp`, `.json`, case-insensitive; hidden files skipped)
-/// in the directories holding `scans`. Exactly one candidate → `Some(it)`; none → `None`;
-/// several → [`Error::Param`] listing them and asking for `--align`.
+/// Looks for alignment files (`.conf`, `.mlp`, `.aln`, `.json`, case-insensitive; hidden files
+/// skipped) in the directories holding `scans`. Exactly one candidate → `Some(it)`; none →
+/// `None`; several → [`Error::Param`] listing them and asking for `--align`.
 pub fn find_alignment_beside(scans: &[PathBuf]) -> Result<Option<PathBuf>> {
     let mut dirs: Vec<PathBuf> = Vec::new();
     for scan in scans {
@@ -228,22 +249,33 @@ pub fn find_alignment_beside(scans: &[PathBuf]) -> Result<Option<PathBuf>> {
     }
 }
 
-/// Returns one pose per scan, in scan order. A scan matches the entry with the same file name;
-/// when file names are ambiguous (two entries or two scans share one), the entry's name is
-/// resolved relative to the alignment file's directory and compared with the scan's path.
-/// Errors: a scan without an entry, an entry naming a scan that was not given, an entry that
-/// appears twice, or two scans matching one entry.
+/// Returns one pose per scan, in scan order: [`match_scans`], with a scan the alignment does
+/// not name an error. Entries that match none of `scans` are fine (a subset of a site).
 pub fn poses_for_scans(al: &Alignment, scans: &[PathBuf]) -> Result<Vec<DMat4>> {
-    poses_for_scans_beside(al, scans, &[])
+    let found = match_scans(al, scans)?;
+    let mut poses = Vec::with_capacity(scans.len());
+    for (scan, m) in scans.iter().zip(found) {
+        let Some(m) = m else {
+            return Err(Error::align(
+                &al.path,
+                format!(
+                    "scan '{}' is not in the alignment file; add it, or give its pose with \
+                     --pose",
+                    scan.display()
+                ),
+            ));
+        };
+        poses.push(m);
+    }
+    Ok(poses)
 }
 
-/// [`poses_for_scans`] when the scans `placed` were also given but take their poses elsewhere
-/// (`--pose`, a sidecar): their entries count as given.
-pub fn poses_for_scans_beside(
-    al: &Alignment,
-    scans: &[PathBuf],
-    placed: &[PathBuf],
-) -> Result<Vec<DMat4>> {
+/// The pose of each scan in the alignment, `None` for a scan it does not name. A scan matches
+/// the entry with the same file name; when file names are ambiguous (two entries or two scans
+/// share one), the entry's name is resolved relative to the alignment file's directory and
+/// compared with the scan's path. Entries that match no scan are fine: running on part of a
+/// site is normal. Errors: an entry that appears twice, or two scans matching one entry.
+pub fn match_scans(al: &Alignment, scans: &[PathBuf]) -> Result<Vec<Option<DMat4>>> {
     let err = |msg: String| Error::align(&al.path, msg);
 
     // Duplicate entries (same name after normalising separators and "./").
@@ -305,10 +337,8 @@ pub fn poses_for_scans_beside(
             first_entry.get(base).copied()
         };
         let Some(ei) = hit else {
-            return Err(err(format!(
-                "scan '{}' is not in the alignment file",
-                scan.display()
-            )));
+            poses.push(None);
+            continue;
         };
         if let Some(other) = owner[ei] {
             return Err(err(format!(
@@ -319,33 +349,9 @@ pub fn poses_for_scans_beside(
             )));
         }
         owner[ei] = Some(si);
-        poses.push(al.entries[ei].pose);
+        poses.push(Some(al.entries[ei].pose));
     }
-
-    let placed_base: Vec<String> = placed
-        .iter()
-        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
-        .collect();
-    let unused: Vec<String> = al
-        .entries
-        .iter()
-        .zip(&owner)
-        .zip(&entry_base)
-        .filter(|((_, o), b)| o.is_none() && !placed_base.contains(b))
-        .map(|(e, _)| e)
-        .map(|(e, _)| format!("'{}'", e.file))
-        .collect();
-    match unused.len() {
-        0 => Ok(poses),
-        1 => Err(err(format!(
-            "{} is named in the alignment file but was not given",
-            unused[0]
-        ))),
-        _ => Err(err(format!(
-            "{} are named in the alignment file but were not given",
-            unused.join(", ")
-        ))),
-    }
+    Ok(poses)
 }
 
 /// Checks that `m` is a rigid transform and returns it with an exactly orthonormal rotation.
@@ -434,11 +440,21 @@ fn orthogonality_error(r: DMat3) -> f64 {
         .max_element()
 }
 
-/// Nearest rotation to a nearly orthonormal `r` with positive determinant: Newton iteration for
-/// the polar factor, `R ← ½(R + R⁻ᵀ)`, which converges quadratically.
+/// Nearest rotation to `r` (positive determinant): the polar factor by the scaled Newton
+/// iteration `R ← ½(γR + (γR)⁻ᵀ)`, which converges quadratically.
 fn nearest_rotation(mut r: DMat3) -> DMat3 {
-    for _ in 0..20 {
-        let next = (r + r.inverse().transpose()) * 0.5;
+    for _ in 0..100 {
+        // Scaled by |det|^(-1/3) (Higham), the iteration converges in a few steps whatever
+        // the scale of a pose `--allow-scale` let in; unscaled it only halves a large scale
+        // per step. Near a rotation the factor is 1.
+        let det = r.determinant();
+        let g = if det.is_finite() && det > 0.0 {
+            det.cbrt().recip()
+        } else {
+            1.0
+        };
+        let gr = r * g;
+        let next = (gr + gr.inverse().transpose()) * 0.5;
         let change = (next - r)
             .to_cols_array()
             .iter()
@@ -1105,12 +1121,6 @@ mod tests {
     #[test]
     fn matching_errors() {
         let a = al(Path::new("/d/x.conf"), &["bun000.ply", "bun090.ply"]);
-        let e = msg(poses_for_scans(&a, &[PathBuf::from("/d/bun000.ply")]).unwrap_err());
-        assert!(
-            e.contains("'bun090.ply' is named in the alignment file but was not given"),
-            "{e}"
-        );
-        assert!(e.contains("x.conf"), "{e}");
         let scans = [
             PathBuf::from("/d/bun000.ply"),
             PathBuf::from("/d/bun090.ply"),
@@ -1118,9 +1128,10 @@ mod tests {
         ];
         let e = msg(poses_for_scans(&a, &scans).unwrap_err());
         assert!(
-            e.contains("scan '/d/x.ply' is not in the alignment file"),
+            e.contains("scan '/d/x.ply' is not in the alignment file") && e.contains("--pose"),
             "{e}"
         );
+        assert!(e.starts_with("/d/x.conf: "), "{e}");
         let dup = al(Path::new("/d/x.conf"), &["a.ply", "./a.ply"]);
         let e = msg(poses_for_scans(&dup, &[PathBuf::from("/d/a.ply")]).unwrap_err());
         assert!(e.contains("'./a.ply' is named more than once"), "{e}");
@@ -1131,6 +1142,21 @@ mod tests {
         )
         .unwrap_err());
         assert!(e.contains("both match"), "{e}");
+    }
+
+    /// Part of a site: entries that match no scan are fine, and `match_scans` leaves a scan
+    /// the file does not name without a pose instead of failing.
+    #[test]
+    fn a_subset_of_the_entries_is_normal() {
+        let a = al(Path::new("/d/x.conf"), &["a.ply", "b.ply", "c.ply"]);
+        let p = poses_for_scans(&a, &[PathBuf::from("/d/c.ply")]).unwrap();
+        assert_eq!(p, vec![DMat4::from_translation(DVec3::splat(2.0))]);
+        let m = match_scans(&a, &[PathBuf::from("/d/z.ply"), PathBuf::from("/d/b.ply")]).unwrap();
+        assert_eq!(
+            m,
+            vec![None, Some(DMat4::from_translation(DVec3::splat(1.0)))]
+        );
+        assert_eq!(match_scans(&a, &[]).unwrap(), vec![]);
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //! the scans), and the file's own pose (E57, PTX); the alignment pose of a file is applied on
 //! top of the file's own poses.
 
-use super::align::{self, Alignment};
+use super::align;
 use super::source::{self, InputFile};
 use crate::error::{Error, Result};
 use crate::scan::Scan;
@@ -72,6 +72,19 @@ pub struct Placer {
     opts: PlaceOptions,
     file_pose: Vec<Option<(DMat4, String)>>,
     alignment: Option<PathBuf>,
+    /// Per input file: what placing it found worth telling, handed out with the file.
+    notes: Vec<Vec<String>>,
+    mode: Mode,
+}
+
+/// How placement problems are met.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    /// A run: a problem that leaves a scan without the pose it needs is an error.
+    Run,
+    /// `mvao info`: every placement problem is a warning and the scans it concerns are taken
+    /// as they are, so that every readable file is described.
+    Describe,
 }
 
 /// One input file read and placed.
@@ -91,13 +104,35 @@ pub struct PlacedFile {
 
 impl Placer {
     /// Resolves the alignment file, sidecars and file-level `--pose` flags of `paths`.
+    ///
+    /// An alignment found beside the scans places the scans it names; naming more scans than
+    /// were given is normal (part of a site). A scan it does not name is taken as it is, with
+    /// a warning, unless the alignment places other scans given with it: then it is an error
+    /// that names `--pose` and `--align` as the fix. A found alignment that cannot be read or
+    /// matched is an error only when some scan needs a pose from it. An alignment given with
+    /// `--align` is the user's statement of where the scans are, so every problem with it is
+    /// an error. Before reporting an alignment problem about a scan, the scan file itself is
+    /// read: its own problem is reported first.
     pub fn new(paths: &[PathBuf], opts: &PlaceOptions) -> Result<Placer> {
+        Placer::build(paths, opts, Mode::Run)
+    }
+
+    /// [`Placer::new`] for describing files (`mvao info`): a placement problem becomes a
+    /// warning on the files it concerns, which are then taken as they are, and a file that
+    /// does not exist is left for [`Placer::open`] to report.
+    pub fn describing(paths: &[PathBuf], opts: &PlaceOptions) -> Result<Placer> {
+        Placer::build(paths, opts, Mode::Describe)
+    }
+
+    fn build(paths: &[PathBuf], opts: &PlaceOptions, mode: Mode) -> Result<Placer> {
         if paths.is_empty() {
             return Err(Error::Param("no scan given".into()));
         }
-        // A missing input is named before any alignment lookup in its directory.
-        for p in paths {
-            std::fs::metadata(p).map_err(|e| Error::io(p, e))?;
+        if mode == Mode::Run {
+            // A missing input is named before any alignment lookup in its directory.
+            for p in paths {
+                std::fs::metadata(p).map_err(|e| Error::io(p, e))?;
+            }
         }
         for (i, o) in opts.poses.iter().enumerate() {
             if let Some(d) = opts.poses[..i].iter().find(|d| d.target == o.target) {
@@ -109,51 +144,174 @@ impl Placer {
                 )));
             }
         }
-        let by_file = |p: &Path| opts.poses.iter().any(|o| names_file(&o.target, p));
-        for p in paths.iter().filter(|p| !by_file(p)) {
-            align::check_one_sidecar(p)?;
-        }
-        let sidecar: Vec<Option<PathBuf>> = paths
-            .iter()
-            .map(|p| (!by_file(p)).then(|| align::sidecar_of(p)).flatten())
-            .collect();
-        let needs_align: Vec<usize> = (0..paths.len())
-            .filter(|&i| sidecar[i].is_none() && !by_file(&paths[i]))
-            .collect();
-        let align_path = match &opts.align {
-            Some(a) => Some(a.clone()),
-            None if !needs_align.is_empty() => {
-                let list: Vec<PathBuf> = needs_align.iter().map(|&i| paths[i].clone()).collect();
-                align::find_alignment_beside(&list)?
-            }
-            None => None,
+        let n = paths.len();
+        let mut placer = Placer {
+            paths: paths.to_vec(),
+            opts: opts.clone(),
+            file_pose: vec![None; n],
+            alignment: None,
+            notes: vec![Vec::new(); n],
+            mode,
         };
-        let mut file_pose: Vec<Option<(DMat4, String)>> = vec![None; paths.len()];
-        if let Some(a) = &align_path {
-            let al: Alignment = align::read_alignment_with(a, opts.allow_scale)?;
-            let list: Vec<PathBuf> = needs_align.iter().map(|&i| paths[i].clone()).collect();
-            let placed: Vec<PathBuf> = (0..paths.len())
-                .filter(|i| !needs_align.contains(i))
-                .map(|i| paths[i].clone())
-                .collect();
-            let poses = align::poses_for_scans_beside(&al, &list, &placed)?;
-            for (&i, m) in needs_align.iter().zip(poses) {
-                file_pose[i] = Some((m, format!("alignment {}", a.display())));
+        let by_file = |p: &Path| opts.poses.iter().any(|o| names_file(&o.target, p));
+        let mut sidecar: Vec<Option<PathBuf>> = vec![None; n];
+        let mut needs_align = Vec::new();
+        for (i, p) in paths.iter().enumerate() {
+            if by_file(p) {
+                continue;
+            }
+            match align::check_one_sidecar(p) {
+                Ok(()) => match align::sidecar_of(p) {
+                    Some(sc) => sidecar[i] = Some(sc),
+                    None => needs_align.push(i),
+                },
+                Err(e) => placer.excuse(i, e)?,
             }
         }
+        placer.place_by_alignment(&needs_align)?;
         for (i, s) in sidecar.iter().enumerate() {
             if let Some(sc) = s {
                 let what = paths[i].display().to_string();
-                let m = align::read_matrix_file(sc, &what, opts.allow_scale)?;
-                file_pose[i] = Some((m, format!("sidecar {}", sc.display())));
+                match align::read_matrix_file(sc, &what, opts.allow_scale) {
+                    Ok(m) => placer.file_pose[i] = Some((m, format!("sidecar {}", sc.display()))),
+                    Err(e) => placer.excuse(i, e)?,
+                }
             }
         }
-        Ok(Placer {
-            paths: paths.to_vec(),
-            opts: opts.clone(),
-            file_pose,
-            alignment: align_path,
-        })
+        Ok(placer)
+    }
+
+    /// Places the files `needs` (no sidecar, no `--pose`) by the alignment file given or found
+    /// beside them (see [`Placer::new`]).
+    fn place_by_alignment(&mut self, needs: &[usize]) -> Result<()> {
+        let explicit = self.opts.align.is_some();
+        if needs.is_empty() && !explicit {
+            return Ok(());
+        }
+        let list: Vec<PathBuf> = needs.iter().map(|&i| self.paths[i].clone()).collect();
+        // A found alignment's problem stops the run only when a scan needs a pose from it.
+        let blocks = explicit || self.need_pose(needs);
+        let path = match &self.opts.align {
+            Some(a) => a.clone(),
+            None => match align::find_alignment_beside(&list) {
+                Ok(Some(a)) => a,
+                Ok(None) => return Ok(()),
+                Err(e) => return self.alignment_problem(needs, e, blocks),
+            },
+        };
+        let found = align::read_alignment_with(&path, self.opts.allow_scale)
+            .and_then(|al| align::match_scans(&al, &list));
+        let found = match found {
+            Ok(f) => f,
+            Err(e) => return self.alignment_problem(needs, e, blocks),
+        };
+        let src = format!("alignment {}", path.display());
+        let unnamed: Vec<usize> = needs
+            .iter()
+            .zip(&found)
+            .filter(|(_, m)| m.is_none())
+            .map(|(&i, _)| i)
+            .collect();
+        let named = needs.len() - unnamed.len();
+        for (&i, m) in needs.iter().zip(found) {
+            self.file_pose[i] = m.map(|m| (m, src.clone()));
+        }
+        if named > 0 || explicit {
+            self.alignment = Some(path.clone());
+        }
+        for &i in &unnamed {
+            let scan = self.paths[i].display().to_string();
+            let stem = self.paths[i]
+                .file_stem()
+                .map_or_else(|| scan.clone(), |s| s.to_string_lossy().into_owned());
+            let e = if explicit {
+                Error::align(
+                    &path,
+                    format!(
+                        "scan '{scan}' is not in the alignment file; add it, or give its pose \
+                         with --pose {stem}=FILE"
+                    ),
+                )
+            } else if named > 0 {
+                Error::Param(format!(
+                    "{scan}: not named in the alignment file {} found beside it, which places \
+                     {named} of the other scans given; give its pose with --pose {stem}=FILE, \
+                     or choose an alignment that names it with --align",
+                    path.display()
+                ))
+            } else {
+                self.notes[i].push(format!(
+                    "{scan}: not named in the alignment file {} found beside it; taken as it \
+                     is (give its pose with --pose {stem}=FILE or --align)",
+                    path.display()
+                ));
+                continue;
+            };
+            if self.mode == Mode::Run {
+                return Err(self.own_problem_first(&[i], e));
+            }
+            self.notes[i].push(format!("{e}; described as it is"));
+        }
+        Ok(())
+    }
+
+    /// True when some of the files `needs` must get a pose from an alignment: files that
+    /// carry no placement of their own (E57 and PTX poses, LAS world coordinates), given
+    /// with other files. One file alone is shaded in its own frame.
+    fn need_pose(&self, needs: &[usize]) -> bool {
+        self.paths.len() > 1
+            && needs.iter().any(|&i| {
+                !source::Format::of_path(&self.paths[i])
+                    .is_ok_and(|f| f.multi_scan() || f.world_coordinates())
+            })
+    }
+
+    /// An alignment file that cannot be used for the files `needs`: an error when it
+    /// `blocks` a run (after any problem of the files themselves), else a note on the first
+    /// of them.
+    fn alignment_problem(&mut self, needs: &[usize], e: Error, blocks: bool) -> Result<()> {
+        if blocks && self.mode == Mode::Run {
+            let e = match e {
+                Error::Align { path, msg } if self.opts.align.is_none() => Error::Align {
+                    path,
+                    msg: format!(
+                        "{msg} (alignment file found beside the scans: fix it, choose another \
+                         with --align, or give the poses with --pose)"
+                    ),
+                },
+                e => e,
+            };
+            return Err(self.own_problem_first(needs, e));
+        }
+        let why = match self.mode {
+            Mode::Run => "not used: no scan given needs a pose from it",
+            Mode::Describe => "not used: the scans are described as they are",
+        };
+        if let Some(&i) = needs.first() {
+            self.notes[i].push(format!("{e} ({why})"));
+        }
+        Ok(())
+    }
+
+    /// A pose problem of file `i` (its sidecars): an error in a run, after any problem of the
+    /// file itself; a note when describing.
+    fn excuse(&mut self, i: usize, e: Error) -> Result<()> {
+        match self.mode {
+            Mode::Run => Err(self.own_problem_first(&[i], e)),
+            Mode::Describe => {
+                self.notes[i].push(format!("{e}; described as it is"));
+                Ok(())
+            }
+        }
+    }
+
+    /// The first problem of the files `concerned` themselves (unreadable, holding no scan),
+    /// else `e`: a broken file is reported as such rather than as an alignment mismatch.
+    fn own_problem_first(&self, concerned: &[usize], e: Error) -> Error {
+        concerned
+            .iter()
+            .find_map(|&i| read_scans(&self.paths[i]).err())
+            .unwrap_or(e)
     }
 
     /// An error for a `--pose` that names none of the input files and none of `scans` (the
@@ -201,15 +359,13 @@ impl Placer {
     pub fn open(&self, fi: usize) -> Result<PlacedFile> {
         let opts = &self.opts;
         let p = &self.paths[fi];
-        let mut f = source::read_input(p)?;
-        if f.scans.is_empty() {
-            return Err(Error::format(p, "holds no scan"));
-        }
+        let mut f = read_scans(p)?;
         let file_pose = &self.file_pose;
         let mut scans = Vec::new();
         let mut file_to_world = Vec::new();
         let mut pose_source = Vec::new();
-        let mut warnings = std::mem::take(&mut f.warnings);
+        let mut warnings = self.notes[fi].clone();
+        warnings.append(&mut f.warnings);
         let own: Vec<Scan> = std::mem::take(&mut f.scans);
         let single = own.len() == 1;
         for (k, mut s) in own.into_iter().enumerate() {
@@ -217,10 +373,14 @@ impl Placer {
             let offset = f.file_to_local[k];
             let given: Option<(DMat4, String)> = match override_for(opts, &s.name, &f.path, single)
             {
-                Some(o) => Some((
-                    align::read_matrix_file(&o.file, &s.name, opts.allow_scale)?,
-                    format!("--pose {}", o.file.display()),
-                )),
+                Some(o) => match align::read_matrix_file(&o.file, &s.name, opts.allow_scale) {
+                    Ok(m) => Some((m, format!("--pose {}", o.file.display()))),
+                    Err(e) if self.mode == Mode::Describe => {
+                        warnings.push(format!("{e}; described as it is"));
+                        None
+                    }
+                    Err(e) => return Err(e),
+                },
                 None => file_pose[fi].clone(),
             };
             if f.format.world_coordinates() {
@@ -333,46 +493,82 @@ impl Dataset {
     /// Reads every file in `paths` and places its scans. `progress` is called once per file.
     pub fn open(paths: &[PathBuf], opts: &PlaceOptions, progress: &dyn Fn()) -> Result<Dataset> {
         let placer = Placer::new(paths, opts)?;
-        let mut files = Vec::with_capacity(paths.len());
-        let mut scans = Vec::new();
-        let mut origin = Vec::new();
-        let mut file_to_world = Vec::new();
-        let mut pose_source = Vec::new();
-        let mut warnings = Vec::new();
+        let mut ds = Dataset::empty(&placer);
         for fi in 0..placer.len() {
-            let pf = placer.open(fi)?;
-            for k in 0..pf.scans.len() {
-                origin.push((fi, k));
-            }
-            scans.extend(pf.scans);
-            file_to_world.extend(pf.file_to_world);
-            pose_source.extend(pf.pose_source);
-            warnings.extend(pf.warnings);
-            files.push(pf.file);
+            ds.add(placer.open(fi)?);
             progress();
         }
-        placer.check_pose_targets(scans.iter().map(|s| s.name.as_str()))?;
-        let identity = pose_source
+        placer.check_pose_targets(ds.scans.iter().map(|s| s.name.as_str()))?;
+        ds.warn_unplaced();
+        Ok(ds)
+    }
+
+    /// For `mvao info`, which never refuses to describe a file: placement problems are
+    /// warnings (see [`Placer::describing`]), and a file that cannot be read is left out of
+    /// the dataset and returned with its error, in input order.
+    pub fn describe(paths: &[PathBuf], opts: &PlaceOptions) -> Result<(Dataset, Vec<Error>)> {
+        let placer = Placer::describing(paths, opts)?;
+        let mut ds = Dataset::empty(&placer);
+        let mut unreadable = Vec::new();
+        for fi in 0..placer.len() {
+            match placer.open(fi) {
+                Ok(pf) => ds.add(pf),
+                Err(e) => unreadable.push(e),
+            }
+        }
+        if let Err(e) = placer.check_pose_targets(ds.scans.iter().map(|s| s.name.as_str())) {
+            ds.warnings.push(e.to_string());
+        }
+        ds.warn_unplaced();
+        Ok((ds, unreadable))
+    }
+
+    fn empty(placer: &Placer) -> Dataset {
+        Dataset {
+            files: Vec::with_capacity(placer.len()),
+            scans: Vec::new(),
+            origin: Vec::new(),
+            file_to_world: Vec::new(),
+            pose_source: Vec::new(),
+            alignment: placer.alignment().map(Path::to_path_buf),
+            warnings: Vec::new(),
+        }
+    }
+
+    fn add(&mut self, pf: PlacedFile) {
+        let fi = self.files.len();
+        self.origin.extend((0..pf.scans.len()).map(|k| (fi, k)));
+        self.scans.extend(pf.scans);
+        self.file_to_world.extend(pf.file_to_world);
+        self.pose_source.extend(pf.pose_source);
+        self.warnings.extend(pf.warnings);
+        self.files.push(pf.file);
+    }
+
+    /// One warning when some of several scans have no pose at all.
+    fn warn_unplaced(&mut self) {
+        let identity = self
+            .pose_source
             .iter()
             .filter(|p| *p == "none (identity)")
             .count();
-        if scans.len() > 1 && identity > 0 {
-            warnings.push(format!(
+        if self.scans.len() > 1 && identity > 0 {
+            self.warnings.push(format!(
                 "{identity} of {} scans have no pose (no alignment file given or found beside \
-                 them, no sidecar, no pose in the file): taken as already aligned",
-                scans.len()
+                 them that names them, no sidecar, no pose in the file): taken as already aligned",
+                self.scans.len()
             ));
         }
-        Ok(Dataset {
-            files,
-            scans,
-            origin,
-            file_to_world,
-            pose_source,
-            alignment: placer.alignment().map(Path::to_path_buf),
-            warnings,
-        })
     }
+}
+
+/// Reads a scan file that must hold at least one scan.
+fn read_scans(path: &Path) -> Result<InputFile> {
+    let f = source::read_input(path)?;
+    if f.scans.is_empty() {
+        return Err(Error::format(path, "holds no scan"));
+    }
+    Ok(f)
 }
 
 /// The last `--pose` naming the scan `name` of `path` (by scan name, or by the file when it

@@ -478,9 +478,17 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
     // EVLRs (LAS 1.4), and the waveform packets of LAS 1.3, follow the point data.
     let mut evlrs = Vec::new();
     let mut evlr_pos = Vec::new();
-    if let Some(e) = evlr_info {
+    // Where the EVLRs start says nothing when there are none (writers leave 0 or junk).
+    if let Some(e) = evlr_info.filter(|e| e.number_of_evlrs > 0) {
         let mut pos = e.start_of_first_evlr;
         let points_end = offset_to_points + data_len.unwrap_or(0);
+        if pos > file_len {
+            return Err(bad(format!(
+                "the first of {} EVLRs would start at byte {pos}, past the end of the file \
+                 ({file_len} bytes)",
+                e.number_of_evlrs
+            )));
+        }
         if !compressed && pos < points_end {
             return Err(bad(format!(
                 "header says {count} points, whose data would end at byte {points_end}, past \
@@ -505,6 +513,12 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
     if let (Some(start), true) = (waveform_start, global_encoding & 2 != 0) {
         waveform_evlr = evlr_pos.iter().position(|&p| p == start);
         if waveform_evlr.is_none() && evlr_info.is_none() {
+            if start > file_len {
+                return Err(bad(format!(
+                    "the waveform data packet record would start at byte {start}, past the end \
+                     of the file ({file_len} bytes)"
+                )));
+            }
             seek(&mut rd, start, path)?;
             let vlr = read_vlr(&mut rd, true, start, file_len)
                 .map_err(|m| bad(format!("waveform data packet record (at byte {start}) {m}")))?;
