@@ -90,7 +90,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
                 "{} {} scans of the {} scene ({} points) and {} written",
                 summary.files.len(),
                 summary.model,
-                summary.scene,
+                summary.label,
                 points,
                 summary.alignment.display()
             );
