@@ -98,7 +98,7 @@ fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
         return s
             .grid
             .as_ref()
-            .map(|g| reference::triangulate_grid(&s.points, g))
+            .map(|g| reference::triangulate_grid_seen(&s.points, g, reference::scan_view(s)))
             .transpose();
     };
     if let Some(faces) = ply.list_column("face", "vertex_indices") {
@@ -123,7 +123,7 @@ fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
     }
     s.grid
         .as_ref()
-        .map(|g| reference::triangulate_grid(&s.points, g))
+        .map(|g| reference::triangulate_grid_seen(&s.points, g, reference::scan_view(s)))
         .transpose()
 }
 
@@ -152,6 +152,7 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
     for (i, s) in ds.scans.iter().enumerate() {
         let setup = sensor::setup(s, cfg.projection)?;
         let (normals, radii, _) = crate::pipeline::scan_normals(s, &setup);
+        let radii = reference::surfel_radii(s, &radii)?;
         let mesh = match cfg.geometry {
             Geometry::Surfels => None,
             Geometry::Mesh => mesh_of(s, &ds.files[ds.origin[i].0].container)?,

@@ -65,7 +65,10 @@ mod prim;
 pub(crate) mod sampling;
 mod wide;
 
-pub use grid::{triangulate_grid, EDGE_RATIO};
+pub use grid::{
+    grid_radii, triangulate_grid, triangulate_grid_seen, View, EDGE_RATIO, GRID_RADIUS_FACTOR,
+    MIN_VIEW_ANGLE_DEG,
+};
 
 use crate::error::{Error, Result};
 use bvh::Ray;
@@ -357,12 +360,22 @@ impl Scene {
         (t < far).then_some(t)
     }
 
-    /// Obscurance of one point (index `index` seeds its directions); `ctx` is scratch.
-    fn point(&self, p: Vec3, n: Vec3, r: f32, run: &Run, index: u64, ctx: &mut Contexts) -> f32 {
+    /// Obscurance of one point (index `index` seeds its directions) and the number of its
+    /// rays that met their own surface (hits discarded by the self-hit rules); `ctx` is
+    /// scratch.
+    fn point(
+        &self,
+        p: Vec3,
+        n: Vec3,
+        r: f32,
+        run: &Run,
+        index: u64,
+        ctx: &mut Contexts,
+    ) -> (f32, u32) {
         let (prm, az) = (&run.prm, &run.az);
         let n = n.normalize_or_zero();
         if n == Vec3::ZERO || !p.is_finite() {
-            return 1.0;
+            return (1.0, 0);
         }
         let r = if r > 0.0 && r.is_finite() { r } else { 0.0 };
         let eps = (ORIGIN_OFFSET * r).max(16.0 * f32::EPSILON * p.abs().max_element());
@@ -374,24 +387,44 @@ impl Scene {
         self.tris.origin(o, n, r, far, &mut ctx.tris);
         let (cs, ct, st) = (&ctx.surfels, &ctx.tris, &mut ctx.stack);
         let mut sum = 0.0f32;
+        let mut own = 0u32;
         if prm.tmax == f32::INFINITY {
             for j in 0..prm.rays {
-                let ray = Ray::new(o, pat.dir(j), r);
+                let ray = Ray::of_point(o, pat.dir(j), r, n);
                 if self.surfels.trace_origin::<true>(cs, &ray, far, st) == far
                     && self.tris.trace_origin::<true>(ct, &ray, far, st) == far
                 {
                     sum += 1.0;
                 }
+                own += (ray.discarded.get() > 0) as u32;
             }
         } else {
             for j in 0..prm.rays {
-                let ray = Ray::new(o, pat.dir(j), r);
+                let ray = Ray::of_point(o, pat.dir(j), r, n);
                 let t = self.surfels.trace_origin::<false>(cs, &ray, prm.tmax, st);
                 let t = self.tris.trace_origin::<false>(ct, &ray, t, st);
                 sum += rho(t, prm.tmax);
+                own += (ray.discarded.get() > 0) as u32;
             }
         }
-        (sum / prm.rays as f32).clamp(0.0, 1.0)
+        ((sum / prm.rays as f32).clamp(0.0, 1.0), own)
+    }
+}
+
+/// How scan `s` is seen, for the grid rules ([`View`]).
+pub fn scan_view(s: &crate::scan::Scan) -> View {
+    match s.sensor_hint {
+        Some(crate::projection::SensorModel::Ortho) => View::Parallel(Vec3::Z),
+        _ => View::Origin,
+    }
+}
+
+/// Surfel radii of scan `s` for the reference: [`grid_radii`] on its native grid, else
+/// `rad` (that is `rad(p)`) unchanged.
+pub fn surfel_radii(s: &crate::scan::Scan, rad: &[f32]) -> Result<Vec<f32>> {
+    match &s.grid {
+        Some(g) => grid_radii(&s.points, g, scan_view(s), rad),
+        None => Ok(rad.to_vec()),
     }
 }
 
@@ -445,17 +478,31 @@ pub fn obscurance(
     prm: &RefParams,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<f32>> {
+    Ok(obscurance_counted(scene, points, normals, radii, prm, progress)?.0)
+}
+
+/// [`obscurance`] with, per point, the number of rays that met the point's own surface (a
+/// hit discarded by the self-hit rules): where that share is large the reference rests on
+/// the rules rather than on the data.
+pub fn obscurance_counted(
+    scene: &Scene,
+    points: &[Vec3],
+    normals: &[Vec3],
+    radii: &[f32],
+    prm: &RefParams,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Vec<f32>, Vec<u32>)> {
     prm.check()?;
     check_inputs(points, normals, radii)?;
     // Points are traced in Morton order so consecutive work touches the same part of the
     // hierarchy (the input order may be anything); each keeps its own index as its seed.
     let order = spatial_order(points);
     let run = Run::new(prm);
-    let vals: Vec<f32> = order
+    let vals: Vec<(f32, u32)> = order
         .par_chunks(CHUNK)
         .flat_map_iter(|chunk| {
             let mut ctx = Contexts::default();
-            let v: Vec<f32> = chunk
+            let v: Vec<(f32, u32)> = chunk
                 .iter()
                 .map(|&i| {
                     let i = i as usize;
@@ -467,10 +514,12 @@ pub fn obscurance(
         })
         .collect();
     let mut out = vec![1.0f32; points.len()];
-    for (&i, v) in order.iter().zip(vals) {
+    let mut own = vec![0u32; points.len()];
+    for (&i, (v, k)) in order.iter().zip(vals) {
         out[i as usize] = v;
+        own[i as usize] = k;
     }
-    Ok(out)
+    Ok((out, own))
 }
 
 /// Indices of `points` sorted along a Morton curve over their bounding box (non-finite points
@@ -557,8 +606,12 @@ pub fn convergence(
     let diffs: Vec<f32> = idx
         .par_iter()
         .map_init(Contexts::default, |ctx, &i| {
-            let a = scene.point(points[i], normals[i], radii[i], &r1, i as u64, ctx);
-            let b = scene.point(points[i], normals[i], radii[i], &r4, i as u64, ctx);
+            let a = scene
+                .point(points[i], normals[i], radii[i], &r1, i as u64, ctx)
+                .0;
+            let b = scene
+                .point(points[i], normals[i], radii[i], &r4, i as u64, ctx)
+                .0;
             (a - b).abs()
         })
         .collect();
@@ -593,6 +646,8 @@ fn per_second(count: u64, seconds: f64) -> f64 {
 pub struct Reference {
     /// `A` per query point.
     pub a: Vec<f32>,
+    /// Per query point, the rays that met the point's own surface (discarded hits).
+    pub self_hits: Vec<u32>,
     /// `|A_R − A_4R|` on a sample; timing fields from the main run.
     pub convergence: Convergence,
 }
@@ -609,12 +664,13 @@ pub fn reference(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Reference> {
     let start = Instant::now();
-    let a = obscurance(scene, points, normals, radii, prm, progress)?;
+    let (a, self_hits) = obscurance_counted(scene, points, normals, radii, prm, progress)?;
     let seconds = start.elapsed().as_secs_f64();
     let rays_cast = points.len() as u64 * prm.rays as u64;
     let conv = convergence(scene, points, normals, radii, prm, sample)?;
     Ok(Reference {
         a,
+        self_hits,
         convergence: Convergence {
             rays_cast,
             seconds,
