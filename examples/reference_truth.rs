@@ -116,6 +116,9 @@ fn run() -> anyhow::Result<()> {
         let t = std::time::Instant::now();
         let rep = accuracy::run_reference(&cfg, &|_| {})?;
         let names: Vec<String> = rep.scans.iter().map(|s| s.name.clone()).collect();
+        for s in &rep.scans {
+            println!("{label} {} self-check: {:?}", s.name, s.self_check);
+        }
         let mut all_a = Vec::new();
         let mut all_t = Vec::new();
         for name in &names {

@@ -61,6 +61,8 @@ pub struct RefScan {
     pub mean_a: f64,
     /// |A_R − A_4R| on a sample, and the timing of the main run.
     pub convergence: Convergence,
+    /// Open points (by the data) that the reference darkens, on a sample.
+    pub self_check: reference::SelfCheck,
 }
 
 /// `reference.json`.
@@ -178,14 +180,26 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         let r = reference::reference(&scene, &pts, &nrm, radii, &cfg.params, cfg.sample, progress)?;
         rays += r.convergence.rays_cast;
         secs += r.convergence.seconds;
+        let check = reference::self_check(
+            &scene,
+            &pts,
+            &nrm,
+            radii,
+            &r.a,
+            &r.self_hits,
+            &cfg.params,
+            cfg.sample,
+        );
         write_reference_ply(
             &reference_path(&cfg.out_dir, &s.name),
             s,
             normals,
             radii,
             &r.a,
+            Some(&r.self_hits),
         )?;
         scans.push(RefScan {
+            self_check: check,
             name: s.name.clone(),
             points: s.len(),
             mean_a: r.a.iter().map(|&v| v as f64).sum::<f64>() / s.len().max(1) as f64,
@@ -211,13 +225,15 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
     Ok(report)
 }
 
-/// Writes one scan's reference: world x y z, normal, radius and `ao` = A.
+/// Writes one scan's reference: world x y z, normal, radius, `ao` = A and, when given,
+/// `self_hits` = the rays per point that met the point's own surface.
 pub fn write_reference_ply(
     path: &Path,
     s: &Scan,
     normals: &[Vec3],
     radii: &[f32],
     a: &[f32],
+    self_hits: Option<&[u32]>,
 ) -> Result<()> {
     let world: Vec<[f64; 3]> = s
         .points
@@ -239,17 +255,24 @@ pub fn write_reference_ply(
             }
         })
         .collect();
+    let hits: Vec<f64> = self_hits
+        .map(|h| h.iter().map(|&v| v as f64).collect())
+        .unwrap_or_default();
+    let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![
+        ("x", ScalarType::F64, &x),
+        ("y", ScalarType::F64, &y),
+        ("z", ScalarType::F64, &z),
+        ("nx", ScalarType::F32, &nx),
+        ("ny", ScalarType::F32, &ny),
+        ("nz", ScalarType::F32, &nz),
+        ("radius", ScalarType::F32, &r),
+        ("ao", ScalarType::F32, &ao),
+    ];
+    if self_hits.is_some() {
+        cols.push(("self_hits", ScalarType::U32, &hits));
+    }
     let ply = PlyFile::from_vertex_columns(
-        &[
-            ("x", ScalarType::F64, &x),
-            ("y", ScalarType::F64, &y),
-            ("z", ScalarType::F64, &z),
-            ("nx", ScalarType::F32, &nx),
-            ("ny", ScalarType::F32, &ny),
-            ("nz", ScalarType::F32, &nz),
-            ("radius", ScalarType::F32, &r),
-            ("ao", ScalarType::F32, &ao),
-        ],
+        &cols,
         &[format!(
             "mvao {} reference obscurance of scan {}",
             env!("CARGO_PKG_VERSION"),

@@ -279,7 +279,7 @@ mod tests {
 
     #[test]
     fn flat_grid_gives_two_triangles_per_quad() {
-        let (p, g) = grid_of(5, 6, |r, c| Some(Vec3::new(c as f32, r as f32, 0.0)));
+        let (p, g) = grid_of(5, 6, |r, c| Some(Vec3::new(c as f32, r as f32, -1.0)));
         let t = triangulate_grid(&p, &g).unwrap();
         assert_eq!(t.len(), 2 * 4 * 5);
         // Total area = 4 × 5.
@@ -343,7 +343,7 @@ mod tests {
     #[test]
     fn holes_and_bad_grids() {
         let (p, g) = grid_of(3, 3, |r, c| {
-            (!(r == 1 && c == 1)).then(|| Vec3::new(c as f32, r as f32, 0.0))
+            (!(r == 1 && c == 1)).then(|| Vec3::new(c as f32, r as f32, -1.0))
         });
         // Every block has 3 cells: one triangle each.
         assert_eq!(triangulate_grid(&p, &g).unwrap().len(), 4);

@@ -411,6 +411,100 @@ impl Scene {
     }
 }
 
+/// Height of the plane the self-check lifts above an open point, relative to `t_max` (or to
+/// the scene's extent when `t_max = ∞`); at least `2·rad(p)`.
+pub const OPEN_LIFT: f32 = 0.05;
+/// An open point reading below this is counted as darkened by the self-check.
+pub const OPEN_MIN_A: f32 = 0.9;
+
+/// The self-check of a reference run: points that the data itself shows to be open must
+/// read open.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SelfCheck {
+    /// Points examined (evenly spread over the input order).
+    pub sample: usize,
+    /// Of those, points with nothing of any scan above the plane lifted
+    /// `max(OPEN_LIFT·t_max, 2·rad(p))` over their tangent plane within `t_max`: open by the
+    /// data alone, so `A` should be near 1.
+    pub open: usize,
+    /// Open points whose reference reads below [`OPEN_MIN_A`].
+    pub darkened: usize,
+    /// Smallest reference value among the open points (1 when there is none).
+    pub min_open_a: f32,
+    /// Mean over the sample of the share of a point's rays that met its own surface.
+    pub mean_self_hit_share: f32,
+}
+
+/// Share of the open points the self-check lets read below [`OPEN_MIN_A`]: the open test
+/// looks only above a lifted plane, so a point beside a kerb lower than the lift may
+/// rightly read a little darker.
+pub const OPEN_DARKENED_MAX: f64 = 0.01;
+
+impl SelfCheck {
+    /// True when at most [`OPEN_DARKENED_MAX`] of the open points read darkened.
+    pub fn passed(&self) -> bool {
+        self.darkened as f64 <= OPEN_DARKENED_MAX * self.open as f64
+    }
+}
+
+/// Checks a computed reference `a` (with its per-point self-hit counts) on `sample` points
+/// spread evenly over the input: a point is *open* when the scene has nothing above the
+/// plane `max(OPEN_LIFT·t_max, 2·rad(p))` over its tangent plane within `t_max` (t_max = ∞:
+/// within the scene), in which case nearly every ray must escape; a darkened open point
+/// means the reference stops rays on something the data does not hold above it.
+pub fn self_check(
+    scene: &Scene,
+    points: &[Vec3],
+    normals: &[Vec3],
+    radii: &[f32],
+    a: &[f32],
+    self_hits: &[u32],
+    prm: &RefParams,
+    sample: usize,
+) -> SelfCheck {
+    let n = points
+        .len()
+        .min(normals.len())
+        .min(radii.len())
+        .min(a.len());
+    let m = sample.min(n);
+    let ((l1, h1), (l2, h2)) = (scene.surfels.bounds(), scene.tris.bounds());
+    let extent = (h1.max(h2) - l1.min(l2)).max_element().max(0.0);
+    let reach = if prm.tmax.is_finite() {
+        prm.tmax
+    } else {
+        extent.max(f32::MIN_POSITIVE) * 2.0
+    };
+    let found: Vec<(bool, f32, f32)> = (0..m)
+        .into_par_iter()
+        .map_init(Contexts::default, |ctx, k| {
+            let i = (k as u128 * n as u128 / m as u128) as usize;
+            let nn = normals[i].normalize_or_zero();
+            let share = self_hits.get(i).copied().unwrap_or(0) as f32 / prm.rays as f32;
+            if nn == Vec3::ZERO || !points[i].is_finite() {
+                return (false, 1.0, share);
+            }
+            let lift = (OPEN_LIFT * reach.min(extent)).max(2.0 * radii[i].max(0.0));
+            let o = points[i] + nn * lift;
+            let open = scene.surfels.nothing_above(o, nn, reach, &mut ctx.surfels)
+                && scene.tris.nothing_above(o, nn, reach, &mut ctx.tris);
+            (open, a[i], share)
+        })
+        .collect();
+    let open: Vec<f32> = found.iter().filter(|f| f.0).map(|f| f.1).collect();
+    SelfCheck {
+        sample: m,
+        open: open.len(),
+        darkened: open.iter().filter(|&&v| v < OPEN_MIN_A).count(),
+        min_open_a: open.iter().copied().fold(1.0, f32::min),
+        mean_self_hit_share: if m > 0 {
+            found.iter().map(|f| f.2).sum::<f32>() / m as f32
+        } else {
+            0.0
+        },
+    }
+}
+
 /// How scan `s` is seen, for the grid rules ([`View`]).
 pub fn scan_view(s: &crate::scan::Scan) -> View {
     match s.sensor_hint {

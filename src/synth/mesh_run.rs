@@ -159,6 +159,7 @@ pub fn run_mesh(opts: &SynthOptions, src: &MeshSource) -> Result<SynthSummary> {
                 &normals,
                 &vec![0.0f32; ts.len()],
                 &a,
+                None,
             )?;
         }
         files.push(SynthFile {

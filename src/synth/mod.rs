@@ -385,6 +385,7 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
                 &normals,
                 &radii,
                 &a,
+                None,
             )?;
         }
         entries.push(AlignEntry {
