@@ -180,16 +180,7 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         let r = reference::reference(&scene, &pts, &nrm, radii, &cfg.params, cfg.sample, progress)?;
         rays += r.convergence.rays_cast;
         secs += r.convergence.seconds;
-        let check = reference::self_check(
-            &scene,
-            &pts,
-            &nrm,
-            radii,
-            &r.a,
-            &r.self_hits,
-            &cfg.params,
-            cfg.sample,
-        );
+        let check = reference::self_check(&scene, &pts, &nrm, radii, &r, &cfg.params, cfg.sample);
         write_reference_ply(
             &reference_path(&cfg.out_dir, &s.name),
             s,

@@ -19,26 +19,40 @@
 //! for a seed, independent of the thread count and of the other points.
 //!
 //! **Self-hits.** A query point lies on its own surfel and among neighbouring surfels of the
-//! same surface, from its own scan and from others. Two rules keep them out:
+//! same surface, from its own scan and from others. A ray must not be stopped by the sampled
+//! surface it starts from; three rules keep it out (measured against exact mesh ground
+//! truth, `docs/reference.md`):
 //! 1. the ray starts at `p + n·ε`, `ε = 0.01·rad(p)` (at least 16 f32 ulps of `p`), so the
 //!    point's own disk and coplanar neighbours are behind the origin;
 //! 2. a surfel hit from its back side (`d·n_q > 0`: the ray leaves through the disk in the
-//!    direction the disk faces) closer than `2·(rad(p) + rad(q))` is ignored. On a convex
-//!    surface every neighbour's tangent disk overhangs the query point and is met from behind
-//!    by rays leaving the surface; so are the slightly raised surfels of noise or of another
-//!    scan of the same surface. Real occluders within that distance are nearly always seen
-//!    from their front (the side their scanner saw), and are kept.
+//!    direction the disk faces) closer than `2·(rad(p) + rad(q))` is ignored: on a convex
+//!    surface every neighbour's tangent disk overhangs the query point;
+//! 3. own patch: any hit closer than `2·rad(p)` on a surface whose normal is within 60° of
+//!    the point's (`|n_q·n_p| > 0.5`, either side) is ignored: neighbours tilted by normal
+//!    error or noise, the co-located samples of another scan lifted by a registration
+//!    residual, a grid triangle cutting the corner of a crease. A real occluder that close
+//!    faces across (the wall of a crease) and is kept.
 //!
-//! Triangles have no back-side rule (a mesh's own faces at a convex vertex lie below the
-//! tangent plane). Measured with 256 rays per point (`tests/reference.rs`, which asserts
-//! these bounds): an open plane of disks (exact `A = 1`) reads exactly 1; the outside of a
-//! sphere of radius 0.15 m sampled by 6000 disks (convex, exact 1) reads 1.0000 for
-//! `t_max = 0.4` and `∞`, but ≈ 0 without rule 2 (the overhanging neighbour disks close the
-//! hemisphere); the inside of the same sphere (concave, front hits, exact
-//! `6R²/t² − 32R³/(5t³)` = 0.50625 for `t_max = 0.4`) reads 0.5066 with or without rule 2.
+//! Each ray that had a hit discarded by these rules is counted per point
+//! ([`Reference::self_hits`], the `self_hits` column of the reference files): a large share
+//! shows where the value rests on the rules rather than on the data.
+//!
+//! **Sizes from the grid.** For scans with a native grid, [`surfel_radii`] gives each disk
+//! `0.75 ×` its longest kept grid edge instead of `rad(p)`: `rad(p)` spreads the 32 nearest
+//! neighbours over a disk, which swells the disks of one-cell-wide structures (a thin
+//! column far away, a silhouette) to several times their width and leaves gaps between the
+//! stretched cells of a grazing floor. Grid edges within 4° of the line of sight are dropped
+//! ([`MIN_VIEW_ANGLE_DEG`]): they join a foreground to its background where the ratio test
+//! cannot see the jump (both neighbours of a one-cell-wide foreground are jumps too).
+//!
 //! What the rules cost: occluders closer than `ε` to the point are missed (a bias of order
 //! `ε/t_max` in creases), and so are surfaces met from behind within `2·(rad(p) + rad(q))`
-//! (a thin shell seen from its unscanned side at less than a few point spacings).
+//! and surfaces nearly parallel to the point within `2·rad(p)` (a step lower than two
+//! sample spacings).
+//!
+//! **Self-check.** [`self_check`] examines a sample of points that the data itself shows to
+//! be open (nothing of any scan above a plane lifted a little over the tangent plane within
+//! `t_max`) and counts those the reference darkens.
 //!
 //! **Cost.** Rays of one point share their origin, so the descent to it is done once per
 //! point: the leaves whose box contains the origin give a short list of primitives that some
@@ -49,15 +63,7 @@
 //! Morton order (each keeps its own index as seed) so that consecutive points reuse the same
 //! nodes. No allocation per point or ray; rayon over points.
 //!
-//! Measured on the synthetic room (`benches/reference.rs`: 3.1 M surfels, every 10th point of
-//! one station, `t_max = 0.4`, 64 rays; rays per CPU-second, since the machine is shared):
-//! binary BVH of 32-byte nodes traced from the root 0.26 M (wall, loaded), with per-origin
-//! lists 1.3 M; 4-wide nodes 2.0 M; no per-call stack zeroing and a shared azimuth table
-//! 2.6 M; per-origin culling of the own surface 3.0 M; surfel test that rejects before
-//! dividing 3.8 M. Opening more of the tree per origin (near subtrees down to leaves) made it
-//! slower (1.8–2.3 M); the SAH leaf cost (1–3) and leaf cap (4–16) changed little, so the
-//! cheaper-memory setting is kept (134 MB for 3.1 M surfels). With `t_max = ∞` rays cross the
-//! room and end in cold memory: 0.8–0.9 M.
+//! Throughput: `cargo bench --bench reference`; the figures are in `docs/reference.md`.
 
 mod bvh;
 mod grid;
@@ -447,7 +453,7 @@ impl SelfCheck {
     }
 }
 
-/// Checks a computed reference `a` (with its per-point self-hit counts) on `sample` points
+/// Checks a computed reference `r` (values and per-point self-hit counts) on `sample` points
 /// spread evenly over the input: a point is *open* when the scene has nothing above the
 /// plane `max(OPEN_LIFT·t_max, 2·rad(p))` over its tangent plane within `t_max` (t_max = ∞:
 /// within the scene), in which case nearly every ray must escape; a darkened open point
@@ -457,11 +463,11 @@ pub fn self_check(
     points: &[Vec3],
     normals: &[Vec3],
     radii: &[f32],
-    a: &[f32],
-    self_hits: &[u32],
+    r: &Reference,
     prm: &RefParams,
     sample: usize,
 ) -> SelfCheck {
+    let (a, self_hits) = (&r.a, &r.self_hits);
     let n = points
         .len()
         .min(normals.len())

@@ -429,9 +429,9 @@ fn check_options(opts: &SynthOptions) -> Result<()> {
         )));
     }
     let reg = opts.registration;
-    if !(reg.translation.is_finite() && reg.translation >= 0.0)
-        || !(reg.angle_deg.is_finite() && (0.0..=180.0).contains(&reg.angle_deg))
-    {
+    let shift_ok = reg.translation.is_finite() && reg.translation >= 0.0;
+    let angle_ok = reg.angle_deg.is_finite() && (0.0..=180.0).contains(&reg.angle_deg);
+    if !(shift_ok && angle_ok) {
         return Err(Error::Param(format!(
             "registration error {} m / {}° must be non-negative (angle at most 180°)",
             reg.translation, reg.angle_deg
