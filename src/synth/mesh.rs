@@ -365,6 +365,80 @@ impl MeshScene {
     }
 }
 
+impl MeshScene {
+    /// The point of the mesh nearest to `p` within `max_dist`, with the index of its
+    /// triangle: where a measured point lies on a reconstructed surface.
+    pub fn nearest(&self, p: DVec3, max_dist: f64) -> Option<(DVec3, u32)> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let mut best: Option<(DVec3, u32)> = None;
+        let mut best_d2 = max_dist * max_dist;
+        let mut stack = [0u32; 64];
+        let mut sp = 1usize;
+        let box_d2 = |n: &Node| ((n.lo - p).max(p - n.hi).max(DVec3::ZERO)).length_squared();
+        while sp > 0 {
+            sp -= 1;
+            let node = &self.nodes[stack[sp] as usize];
+            if box_d2(node) > best_d2 {
+                continue;
+            }
+            if node.count > 0 {
+                let first = node.at as usize;
+                for tr in &self.tris[first..first + node.count as usize] {
+                    let q = closest_on_triangle(p, tr.v0, tr.v0 + tr.e1, tr.v0 + tr.e2);
+                    let d2 = q.distance_squared(p);
+                    if d2 < best_d2 {
+                        best_d2 = d2;
+                        best = Some((q, tr.index));
+                    }
+                }
+                continue;
+            }
+            for k in [node.at, stack[sp] + 1] {
+                if sp < stack.len() {
+                    stack[sp] = k;
+                    sp += 1;
+                }
+            }
+        }
+        best
+    }
+}
+
+/// The point of triangle `abc` nearest to `p` (Ericson, Real-Time Collision Detection 5.1.5).
+fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    a + ab * (vb * denom) + ac * (vc * denom)
+}
+
 /// Entry distance of the ray into the box if it meets it before `limit`.
 #[inline]
 fn slab(lo: DVec3, hi: DVec3, o: DVec3, inv: DVec3, limit: f64) -> Option<f64> {
@@ -497,6 +571,31 @@ mod tests {
             }
             assert_eq!(fast.map(|h| h.t), slow.map(|s| s.0));
         }
+    }
+
+    #[test]
+    fn nearest_point_matches_brute_force() {
+        let m = grid_mesh(12);
+        let sc = MeshScene::new(&m);
+        for k in 0..300 {
+            let f = k as f64;
+            let p = DVec3::new(
+                (f * 0.37).fract() * 1.2 - 0.1,
+                (f * 0.61).fract(),
+                (f * 0.13).sin() * 0.3,
+            );
+            let (q, _) = sc.nearest(p, 10.0).unwrap();
+            let best = m
+                .triangles
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|i| m.vertices[i as usize]);
+                    closest_on_triangle(p, a, b, c).distance(p)
+                })
+                .fold(f64::INFINITY, f64::min);
+            assert!((q.distance(p) - best).abs() < 1e-12, "{k}");
+        }
+        assert!(sc.nearest(DVec3::new(0.5, 0.5, 5.0), 1.0).is_none());
     }
 
     #[test]
