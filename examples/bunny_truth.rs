@@ -37,7 +37,7 @@ fn main() -> anyhow::Result<()> {
         ..PlaceOptions::default()
     };
     let out = std::env::temp_dir().join("mvao-bunny-truth");
-    let reference = |files: &[PathBuf], dir: PathBuf| -> anyhow::Result<()> {
+    let reference = |files: &[PathBuf], place: &PlaceOptions, dir: PathBuf| -> anyhow::Result<()> {
         accuracy::run_reference(
             &RefConfig {
                 scans: files.to_vec(),
@@ -57,12 +57,31 @@ fn main() -> anyhow::Result<()> {
         )?;
         Ok(())
     };
-    reference(&scans, out.join("all"))?;
+    reference(&scans, &place, out.join("all"))?;
     let ds = Dataset::open(&scans, &place, &|| {})?;
     let (mut all_t, mut all_j, mut all_a) = (Vec::new(), Vec::new(), Vec::new());
     for (k, s) in ds.scans.iter().enumerate() {
         let alone = out.join(format!("alone{k}"));
-        reference(std::slice::from_ref(&scans[ds.origin[k].0]), alone.clone())?;
+        // The scan alone, at the pose the alignment gives it.
+        let file = &scans[ds.origin[k].0];
+        std::fs::create_dir_all(&alone)?;
+        let mlp = alone.join("one.mlp");
+        mvao::io::align::write_mlp(
+            &mlp,
+            &[mvao::io::align::AlignEntry {
+                file: file
+                    .file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .into_owned(),
+                pose: ds.file_to_world[k],
+            }],
+        )?;
+        let one = PlaceOptions {
+            align: Some(mlp),
+            ..PlaceOptions::default()
+        };
+        reference(std::slice::from_ref(file), &one, alone.clone())?;
         let joint = accuracy::read_ao(&accuracy::reference_path(&out.join("all"), &s.name))?;
         let own = accuracy::read_ao(&accuracy::reference_path(&alone, &s.name))?;
         let ply = mvao::io::ply::PlyFile::read_path(&accuracy::reference_path(&alone, &s.name))?;
