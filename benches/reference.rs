@@ -1,5 +1,6 @@
 //! Reference ray-casting throughput on the synthetic room (three 1440×720 equirect stations,
-//! ≈1M points each, 2 mm range noise, exact normals, radii from the native grid): all
+//! ≈1M points each, 2 mm range noise, exact normals, surfel radii from the kept grid edges
+//! as `mvao reference` sizes them, `reference::grid_radii`): all
 //! three scans as surfels in one scene, query points = every `STEP`-th point of station 0.
 //! `cargo bench --bench reference` prints build time and rays/s for t_max = 0.4 m and ∞.
 //! `MVAO_BENCH_STEP=1` traces every point of station 0, `MVAO_BENCH_RAYS=R` casts R rays per
@@ -46,7 +47,8 @@ fn main() {
         .iter()
         .map(|s| {
             let g = s.grid.as_ref().expect("synthetic scans are gridded");
-            normals::estimate_grid(&s.points, g, false, |p| -p.normalize_or_zero()).1
+            let rad = normals::estimate_grid(&s.points, g, false, |p| -p.normalize_or_zero()).1;
+            reference::grid_radii(&s.points, g, reference::View::Origin, &rad).expect("radii")
         })
         .collect();
     let t = Instant::now();

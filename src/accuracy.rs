@@ -63,6 +63,8 @@ pub struct RefScan {
     pub mean_a: f64,
     /// |A_R − A_4R| on a sample, and the timing of the main run.
     pub convergence: Convergence,
+    /// Open points (by the data) that the reference darkens, on a sample.
+    pub self_check: reference::SelfCheck,
 }
 
 /// `reference.json`.
@@ -95,7 +97,7 @@ fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
         return s
             .grid
             .as_ref()
-            .map(|g| reference::triangulate_grid(&s.points, g))
+            .map(|g| reference::triangulate_grid_seen(&s.points, g, reference::scan_view(s)))
             .transpose();
     };
     if let Some(faces) = ply.list_column("face", "vertex_indices") {
@@ -120,7 +122,7 @@ fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
     }
     s.grid
         .as_ref()
-        .map(|g| reference::triangulate_grid(&s.points, g))
+        .map(|g| reference::triangulate_grid_seen(&s.points, g, reference::scan_view(s)))
         .transpose()
 }
 
@@ -149,6 +151,7 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
     for (i, s) in ds.scans.iter().enumerate() {
         let setup = sensor::setup(s, cfg.projection)?;
         let (normals, radii, _) = crate::view::scan_normals(s, &setup);
+        let radii = reference::surfel_radii(s, &radii)?;
         let mesh = match cfg.geometry {
             Geometry::Surfels => None,
             Geometry::Mesh => mesh_of(s, &ds.files[ds.origin[i].0].container)?,
@@ -174,14 +177,17 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         let r = reference::reference(&scene, &pts, &nrm, radii, &cfg.params, cfg.sample, progress)?;
         rays += r.convergence.rays_cast;
         secs += r.convergence.seconds;
+        let check = reference::self_check(&scene, &pts, &nrm, radii, &r, &cfg.params, cfg.sample);
         write_reference_ply(
             &reference_path(&cfg.out_dir, &s.name),
             s,
             normals,
             radii,
             &r.a,
+            Some(&r.self_hits),
         )?;
         scans.push(RefScan {
+            self_check: check,
             name: s.name.clone(),
             points: s.len(),
             mean_a: r.a.iter().map(|&v| v as f64).sum::<f64>() / s.len().max(1) as f64,

@@ -10,8 +10,9 @@ use crate::projection::SensorModel;
 use crate::reference::RefParams;
 use crate::sensor::ProjectionChoice;
 use crate::ssao::Estimator;
-use crate::synth::{SceneKind, SynthOptions};
+use crate::synth::{MeshKind, MeshSource, Registration, SceneKind, SynthOptions};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use glam::DVec3;
 use std::path::PathBuf;
 
 /// mvao — multi-view ambient occlusion for raw aligned 3D scans.
@@ -377,18 +378,6 @@ fn parse_neighbors(s: &str) -> Result<u32, String> {
     }
 }
 
-/// Scenes of `mvao synth`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum SceneArg {
-    /// A closed room with furniture, a column and a niche.
-    Room,
-    /// An open courtyard with an arcade and a fountain.
-    Courtyard,
-    /// A row of rooms joined by doorways, four stations to a room (a site whose scans each
-    /// overlap only their neighbours').
-    Suite,
-}
-
 /// Sensor models of `mvao synth`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum ModelArg {
@@ -416,9 +405,10 @@ pub const STATIONS_PER_ROOM: usize = 4;
 /// Flags of `mvao synth`.
 #[derive(Debug, Args)]
 pub struct SynthArgs {
-    /// Scene.
-    #[arg(long, value_enum, default_value_t = SceneArg::Room)]
-    pub scene: SceneArg,
+    /// Scene: room, courtyard, suite (analytic); colonnade, vault, relief, porch (built-in
+    /// meshes); or a PLY/OBJ triangle mesh file (world coordinates, metres, z up).
+    #[arg(long, default_value = "room", value_name = "NAME|FILE")]
+    pub scene: String,
     /// Number of scanner stations.
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub stations: u32,
@@ -447,6 +437,33 @@ pub struct SynthArgs {
     /// t_max (metres, or inf) of the analytic reference.
     #[arg(long, value_name = "T", default_value = "inf")]
     pub reference_tmax: String,
+    // Mesh scenes.
+    /// Mesh scenes: a station position `X,Y,Z` (repeat for more; used in turn).
+    #[arg(long = "at", value_name = "X,Y,Z", value_parser = parse_xyz)]
+    pub at: Vec<DVec3>,
+    /// Mesh scenes: where perspective stations look (`X,Y,Z`).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_xyz)]
+    pub look_at: Option<DVec3>,
+    /// Mesh scenes: registration error put into each station's pose, `METRES,DEGREES` (a
+    /// random rigid shift and rotation of exactly that size per station).
+    #[arg(long, value_name = "M,DEG", default_value = "0,0")]
+    pub registration_error: String,
+    /// Leave the exact normals out of the scans.
+    #[arg(long)]
+    pub no_normals: bool,
+}
+
+/// `X,Y,Z` as a finite point.
+fn parse_xyz(s: &str) -> Result<DVec3, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not X,Y,Z"))?;
+    match v[..] {
+        [x, y, z] if x.is_finite() && y.is_finite() && z.is_finite() => Ok(DVec3::new(x, y, z)),
+        _ => Err(format!("'{s}' is not X,Y,Z")),
+    }
 }
 
 impl SynthArgs {
@@ -459,14 +476,50 @@ impl SynthArgs {
             )),
             None => None,
         };
-        Ok(SynthOptions {
-            scene: match self.scene {
-                SceneArg::Room => SceneKind::Room,
-                SceneArg::Courtyard => SceneKind::Courtyard,
-                SceneArg::Suite => SceneKind::Suite {
+        let (scene, mesh) = match self.scene.to_ascii_lowercase().as_str() {
+            "room" => (SceneKind::Room, None),
+            "courtyard" => (SceneKind::Courtyard, None),
+            "suite" => (
+                SceneKind::Suite {
                     rooms: (self.stations as usize).div_ceil(STATIONS_PER_ROOM),
                 },
+                None,
+            ),
+            name => match MeshKind::from_name(name) {
+                Some(k) => (SceneKind::Room, Some(MeshSource::Builtin(k))),
+                None => (
+                    SceneKind::Room,
+                    Some(MeshSource::File(PathBuf::from(&self.scene))),
+                ),
             },
+        };
+        let reg: Vec<f64> = self
+            .registration_error
+            .split(',')
+            .map(|t| t.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| {
+                format!(
+                    "--registration-error must be METRES,DEGREES, got '{}'",
+                    self.registration_error
+                )
+            })?;
+        let [translation, angle_deg] = reg[..] else {
+            return Err(format!(
+                "--registration-error must be METRES,DEGREES, got '{}'",
+                self.registration_error
+            ));
+        };
+        Ok(SynthOptions {
+            scene,
+            mesh,
+            at: self.at,
+            look_at: self.look_at,
+            registration: Registration {
+                translation,
+                angle_deg,
+            },
+            normals: !self.no_normals,
             stations: self.stations as usize,
             model: self.projection.into(),
             width: self.width,

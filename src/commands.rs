@@ -78,6 +78,24 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
                     cfg.out_dir.display()
                 );
             }
+            // The self-check is printed even when quiet: a failed one makes the reference
+            // untrustworthy.
+            for s in &rep.scans {
+                let c = &s.self_check;
+                if !quiet || !c.passed() {
+                    eprintln!(
+                        "{}: self-check {}: {} of {} sampled points open by the data, {} read below {} (lowest {:.3}); {:.1} % of rays met their own surface",
+                        s.name,
+                        if c.passed() { "passed" } else { "FAILED" },
+                        c.open,
+                        c.sample,
+                        c.darkened,
+                        crate::reference::OPEN_MIN_A,
+                        c.min_open_a,
+                        100.0 * c.mean_self_hit_share
+                    );
+                }
+            }
             Ok(())
         }
         Command::Eval(args) => eval(args),
@@ -91,7 +109,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
                 "{} {} scans of the {} scene ({} points) and {} written",
                 summary.files.len(),
                 summary.model,
-                summary.scene,
+                summary.label,
                 points,
                 summary.alignment.display()
             );

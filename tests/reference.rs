@@ -6,7 +6,10 @@
 //! bound below is at least four such deviations.
 
 use glam::{DMat4, DVec3, Vec3};
-use mvao::reference::{self, obscurance, rho, triangulate_grid, RefParams, Scene, SceneBuilder};
+use mvao::reference::{
+    self, obscurance, rho, triangulate_grid, triangulate_grid_seen, RefParams, Scene, SceneBuilder,
+    View,
+};
 use mvao::scan::Grid;
 
 const INF: f32 = f32::INFINITY;
@@ -115,7 +118,8 @@ fn open_plane_is_open() {
     // The same plane as triangles of its grid.
     let xs = range(-0.6, 0.6, 0.01);
     let (p, g) = grid_points(&xs, &xs, |x, y| Vec3::new(x, y, 0.0));
-    let tris = triangulate_grid(&p, &g).unwrap();
+    // Seen from above (a grid seen from the origin, which lies in this plane, is edge-on).
+    let tris = triangulate_grid_seen(&p, &g, View::Parallel(Vec3::Z)).unwrap();
     let mut b = Scene::builder(DMat4::IDENTITY);
     b.add_triangles("plane", DMat4::IDENTITY, &p, &tris)
         .unwrap();
@@ -377,7 +381,7 @@ fn surfels_and_triangles_of_one_grid_agree() {
         })
         .collect();
     let r = vec![0.0113f32; p.len()];
-    let tris = triangulate_grid(&p, &g).unwrap();
+    let tris = triangulate_grid_seen(&p, &g, View::Parallel(Vec3::Z)).unwrap();
     assert_eq!(tris.len(), 2 * 100 * 100);
     let mut b = Scene::builder(DMat4::IDENTITY);
     b.add_surfels("bumps", DMat4::IDENTITY, &p, &n, &r).unwrap();

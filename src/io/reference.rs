@@ -13,13 +13,15 @@ pub fn reference_path(dir: &Path, name: &str) -> PathBuf {
     dir.join(format!("{name}.ref.ply"))
 }
 
-/// Writes one scan's reference: world x y z, normal, radius and `ao` = A.
+/// Writes one scan's reference: world x y z, normal, radius, `ao` = A and, when given,
+/// `self_hits` = the rays per point that met the point's own surface.
 pub fn write_reference_ply(
     path: &Path,
     s: &Scan,
     normals: &[Vec3],
     radii: &[f32],
     a: &[f32],
+    self_hits: Option<&[u32]>,
 ) -> Result<()> {
     let world: Vec<[f64; 3]> = s
         .points
@@ -41,17 +43,24 @@ pub fn write_reference_ply(
             }
         })
         .collect();
+    let hits: Vec<f64> = self_hits
+        .map(|h| h.iter().map(|&v| v as f64).collect())
+        .unwrap_or_default();
+    let mut cols: Vec<(&str, ScalarType, &[f64])> = vec![
+        ("x", ScalarType::F64, &x),
+        ("y", ScalarType::F64, &y),
+        ("z", ScalarType::F64, &z),
+        ("nx", ScalarType::F32, &nx),
+        ("ny", ScalarType::F32, &ny),
+        ("nz", ScalarType::F32, &nz),
+        ("radius", ScalarType::F32, &r),
+        ("ao", ScalarType::F32, &ao),
+    ];
+    if self_hits.is_some() {
+        cols.push(("self_hits", ScalarType::U32, &hits));
+    }
     let ply = PlyFile::from_vertex_columns(
-        &[
-            ("x", ScalarType::F64, &x),
-            ("y", ScalarType::F64, &y),
-            ("z", ScalarType::F64, &z),
-            ("nx", ScalarType::F32, &nx),
-            ("ny", ScalarType::F32, &ny),
-            ("nz", ScalarType::F32, &nz),
-            ("radius", ScalarType::F32, &r),
-            ("ao", ScalarType::F32, &ao),
-        ],
+        &cols,
         &[format!(
             "mvao {} reference obscurance of scan {}",
             env!("CARGO_PKG_VERSION"),

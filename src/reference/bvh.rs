@@ -17,7 +17,7 @@ pub(crate) trait Primitive: Copy + Send + Sync {
 }
 
 /// A ray with what the primitives need to recognise the query point's own surface.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub(crate) struct Ray {
     /// Origin.
     pub o: Vec3,
@@ -27,6 +27,10 @@ pub(crate) struct Ray {
     pub inv: Vec3,
     /// The query point's radius `rad(p)` (surfels use it for the back-hit rule).
     pub r_self: f32,
+    /// The query point's unit normal for the own-patch rule (zero: no such rule).
+    pub n_self: Vec3,
+    /// Hits the rules discarded as the query point's own surface.
+    pub discarded: std::cell::Cell<u32>,
 }
 
 impl Ray {
@@ -45,7 +49,24 @@ impl Ray {
             d,
             inv: safe.recip(),
             r_self,
+            n_self: Vec3::ZERO,
+            discarded: std::cell::Cell::new(0),
         }
+    }
+
+    /// A ray of a query point with normal `n` (unit): the own-patch rule applies.
+    #[inline]
+    pub fn of_point(o: Vec3, d: Vec3, r_self: f32, n: Vec3) -> Ray {
+        Ray {
+            n_self: n,
+            ..Ray::new(o, d, r_self)
+        }
+    }
+
+    /// Notes one discarded hit.
+    #[inline]
+    pub fn discard(&self) {
+        self.discarded.set(self.discarded.get() + 1);
     }
 }
 

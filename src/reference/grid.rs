@@ -20,6 +20,24 @@ use rayon::prelude::*;
 
 /// Longest kept edge relative to its collinear neighbours.
 pub const EDGE_RATIO: f32 = 3.0;
+/// Smallest angle (degrees) between a kept grid edge and the line of sight: an edge closer
+/// to the line of sight joins a foreground to a background (a depth jump the ratio test
+/// misses when the foreground is one or two cells wide, as a thin column far away) or lies
+/// on a surface seen so edge-on that its cells are not neighbours on it.
+pub const MIN_VIEW_ANGLE_DEG: f32 = 4.0;
+/// Surfel radius from the kept grid edges, relative to the longest of them: a disk of
+/// `0.75·max(edge)` covers its share of a grid of cells of up to that size (the half
+/// diagonal of a square cell is `0.707·edge`) without reaching past a depth jump.
+pub const GRID_RADIUS_FACTOR: f32 = 0.75;
+
+/// Where a scan's sensor looks from, for the line-of-sight test of [`MIN_VIEW_ANGLE_DEG`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum View {
+    /// A centre of projection at the scan's local origin (laser scanners, cameras).
+    Origin,
+    /// Parallel rays along this direction (orthographic sweeps).
+    Parallel(Vec3),
+}
 
 /// Largest grid (in cells) accepted relative to the number of points: a cell index table of
 /// `max(16·n, 2²⁴)` entries.
@@ -27,58 +45,100 @@ fn max_cells(n: usize) -> u64 {
     (16 * n as u64).max(1 << 24)
 }
 
-/// Triangles (indices into `points`) over a scan's native grid; see the module rule.
-/// `grid.row`/`grid.col` give each point's cell; points outside the grid are left out.
-pub fn triangulate_grid(points: &[Vec3], grid: &Grid) -> Result<Vec<[u32; 3]>> {
-    let n = points.len();
-    if grid.row.len() != n || grid.col.len() != n {
-        return Err(Error::Param(format!(
-            "range grid has {} rows and {} columns for {n} points",
-            grid.row.len(),
-            grid.col.len()
-        )));
-    }
-    let (rows, cols) = (grid.rows as usize, grid.cols as usize);
-    let cells = rows as u64 * cols as u64;
-    if cells > max_cells(n) {
-        return Err(Error::Param(format!(
-            "range grid of {rows} × {cols} cells is too sparse for {n} points"
-        )));
-    }
-    let mut at = vec![u32::MAX; cells as usize];
-    for (i, p) in points.iter().enumerate() {
-        let (r, c) = (grid.row[i] as usize, grid.col[i] as usize);
-        if r < rows && c < cols && p.is_finite() {
-            at[r * cols + c] = i as u32;
+/// A scan's points indexed by grid cell, with the edge rule of the module.
+struct Cells<'a> {
+    points: &'a [Vec3],
+    at: Vec<u32>,
+    rows: usize,
+    cols: usize,
+    cos_view: f32,
+    view: View,
+}
+
+impl<'a> Cells<'a> {
+    fn new(points: &'a [Vec3], grid: &Grid, view: View) -> Result<Cells<'a>> {
+        let n = points.len();
+        if grid.row.len() != n || grid.col.len() != n {
+            return Err(Error::Param(format!(
+                "range grid has {} rows and {} columns for {n} points",
+                grid.row.len(),
+                grid.col.len()
+            )));
         }
-    }
-    let get = |r: isize, c: isize| -> Option<Vec3> {
-        if r < 0 || c < 0 || r as usize >= rows || c as usize >= cols {
-            return None;
+        let (rows, cols) = (grid.rows as usize, grid.cols as usize);
+        let cells = rows as u64 * cols as u64;
+        if cells > max_cells(n) {
+            return Err(Error::Param(format!(
+                "range grid of {rows} × {cols} cells is too sparse for {n} points"
+            )));
         }
-        let i = at[r as usize * cols + c as usize];
-        (i != u32::MAX).then(|| points[i as usize])
-    };
-    // Length of the edge from (r, c) to (r + dr, c + dc), if both cells are occupied.
-    let len = |r: isize, c: isize, dr: isize, dc: isize| -> Option<f32> {
-        Some(get(r, c)?.distance(get(r + dr, c + dc)?))
-    };
-    // Is the edge (r, c) → (r + dr, c + dc) kept?
-    let keep = |r: isize, c: isize, dr: isize, dc: isize| -> bool {
-        let Some(l) = len(r, c, dr, dc) else {
+        let mut at = vec![u32::MAX; cells as usize];
+        for (i, p) in points.iter().enumerate() {
+            let (r, c) = (grid.row[i] as usize, grid.col[i] as usize);
+            if r < rows && c < cols && p.is_finite() {
+                at[r * cols + c] = i as u32;
+            }
+        }
+        Ok(Cells {
+            points,
+            at,
+            rows,
+            cols,
+            cos_view: MIN_VIEW_ANGLE_DEG.to_radians().cos(),
+            view,
+        })
+    }
+
+    fn idx(&self, r: isize, c: isize) -> u32 {
+        if r < 0 || c < 0 || r as usize >= self.rows || c as usize >= self.cols {
+            return u32::MAX;
+        }
+        self.at[r as usize * self.cols + c as usize]
+    }
+
+    fn get(&self, r: isize, c: isize) -> Option<Vec3> {
+        let i = self.idx(r, c);
+        (i != u32::MAX).then(|| self.points[i as usize])
+    }
+
+    /// Length of the edge from (r, c) to (r + dr, c + dc), if both cells are occupied.
+    fn len(&self, r: isize, c: isize, dr: isize, dc: isize) -> Option<f32> {
+        Some(self.get(r, c)?.distance(self.get(r + dr, c + dc)?))
+    }
+
+    /// Is the edge from `a` to `b` within [`MIN_VIEW_ANGLE_DEG`] of the line of sight?
+    fn edge_on(&self, a: Vec3, b: Vec3) -> bool {
+        let e = (b - a).normalize_or_zero();
+        let v = match self.view {
+            View::Origin => ((a + b) * 0.5).normalize_or_zero(),
+            View::Parallel(d) => d.normalize_or_zero(),
+        };
+        e.dot(v).abs() > self.cos_view
+    }
+
+    /// Is the edge (r, c) → (r + dr, c + dc) kept?
+    fn keep(&self, r: isize, c: isize, dr: isize, dc: isize) -> bool {
+        let (Some(a), Some(b)) = (self.get(r, c), self.get(r + dr, c + dc)) else {
             return false;
         };
+        if self.edge_on(a, b) {
+            return false;
+        }
+        let l = a.distance(b);
         let mut reference = f32::INFINITY;
-        for x in [len(r - dr, c - dc, dr, dc), len(r + dr, c + dc, dr, dc)]
-            .into_iter()
-            .flatten()
+        for x in [
+            self.len(r - dr, c - dc, dr, dc),
+            self.len(r + dr, c + dc, dr, dc),
+        ]
+        .into_iter()
+        .flatten()
         {
             reference = reference.min(x);
         }
         if reference == f32::INFINITY {
             let (pr, pc) = (dc, dr); // perpendicular step
             for (rr, cc) in [(r, c), (r + dr, c + dc)] {
-                for x in [len(rr, cc, pr, pc), len(rr - pr, cc - pc, pr, pc)]
+                for x in [self.len(rr, cc, pr, pc), self.len(rr - pr, cc - pc, pr, pc)]
                     .into_iter()
                     .flatten()
                 {
@@ -87,29 +147,46 @@ pub fn triangulate_grid(points: &[Vec3], grid: &Grid) -> Result<Vec<[u32; 3]>> {
             }
         }
         reference == f32::INFINITY || l <= EDGE_RATIO * reference
-    };
-    let idx = |r: usize, c: usize| at[r * cols + c];
-    let per_row: Vec<Vec<[u32; 3]>> = (0..rows.saturating_sub(1))
+    }
+}
+
+/// Triangles (indices into `points`) over a scan's native grid seen from the local origin;
+/// see the module rule and [`triangulate_grid_seen`].
+pub fn triangulate_grid(points: &[Vec3], grid: &Grid) -> Result<Vec<[u32; 3]>> {
+    triangulate_grid_seen(points, grid, View::Origin)
+}
+
+/// Triangles (indices into `points`) over a scan's native grid; see the module rule. An
+/// edge within [`MIN_VIEW_ANGLE_DEG`] of the line of sight of `view` is never kept.
+/// `grid.row`/`grid.col` give each point's cell; points outside the grid are left out.
+pub fn triangulate_grid_seen(points: &[Vec3], grid: &Grid, view: View) -> Result<Vec<[u32; 3]>> {
+    let g = Cells::new(points, grid, view)?;
+    let per_row: Vec<Vec<[u32; 3]>> = (0..g.rows.saturating_sub(1))
         .into_par_iter()
         .map(|r| {
             let mut out = Vec::new();
             let ri = r as isize;
-            for c in 0..cols.saturating_sub(1) {
+            for c in 0..g.cols.saturating_sub(1) {
                 let ci = c as isize;
-                let (a, b, cc, d) = (idx(r, c), idx(r, c + 1), idx(r + 1, c), idx(r + 1, c + 1));
+                let (a, b, cc, d) = (
+                    g.idx(ri, ci),
+                    g.idx(ri, ci + 1),
+                    g.idx(ri + 1, ci),
+                    g.idx(ri + 1, ci + 1),
+                );
                 let present = [a, b, cc, d].map(|i| i != u32::MAX);
                 if present.iter().filter(|&&p| p).count() < 3 {
                     continue;
                 }
-                let ab = keep(ri, ci, 0, 1);
-                let cd = keep(ri + 1, ci, 0, 1);
-                let ac = keep(ri, ci, 1, 0);
-                let bd = keep(ri, ci + 1, 1, 0);
+                let ab = g.keep(ri, ci, 0, 1);
+                let cd = g.keep(ri + 1, ci, 0, 1);
+                let ac = g.keep(ri, ci, 1, 0);
+                let bd = g.keep(ri, ci + 1, 1, 0);
                 let diag_ad = match (
-                    get(ri, ci),
-                    get(ri + 1, ci + 1),
-                    get(ri, ci + 1),
-                    get(ri + 1, ci),
+                    g.get(ri, ci),
+                    g.get(ri + 1, ci + 1),
+                    g.get(ri, ci + 1),
+                    g.get(ri + 1, ci),
                 ) {
                     (Some(pa), Some(pd), Some(pb), Some(pc)) => {
                         pa.distance_squared(pd) <= pb.distance_squared(pc)
@@ -140,6 +217,40 @@ pub fn triangulate_grid(points: &[Vec3], grid: &Grid) -> Result<Vec<[u32; 3]>> {
     Ok(per_row.concat())
 }
 
+/// Surfel radii of a gridded scan for the reference: [`GRID_RADIUS_FACTOR`] times the longest
+/// kept edge (the rule of [`triangulate_grid_seen`]) to the point's four grid neighbours;
+/// `fallback[i]` (usually `rad(p)`) for a point with no kept edge. Unlike `rad(p)`, which
+/// spreads the 32 nearest neighbours over a disk, this neither swells on one-cell-wide
+/// structures (a thin column far away, an edge) nor leaves gaps between the stretched cells
+/// of a grazing floor.
+pub fn grid_radii(points: &[Vec3], grid: &Grid, view: View, fallback: &[f32]) -> Result<Vec<f32>> {
+    let g = Cells::new(points, grid, view)?;
+    Ok((0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            let (r, c) = (grid.row[i] as isize, grid.col[i] as isize);
+            let mut longest = 0.0f32;
+            for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
+                // keep() reads an edge from its upper-left end.
+                let (sr, sc) = if dr + dc < 0 {
+                    (r + dr, c + dc)
+                } else {
+                    (r, c)
+                };
+                if g.idx(r, c) == i as u32 && g.keep(sr, sc, dr.abs(), dc.abs()) {
+                    longest = longest.max(g.len(r, c, dr, dc).unwrap_or(0.0));
+                }
+            }
+            let f = fallback.get(i).copied().unwrap_or(0.0);
+            if longest > 0.0 {
+                GRID_RADIUS_FACTOR * longest
+            } else {
+                f
+            }
+        })
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -168,7 +279,7 @@ mod tests {
 
     #[test]
     fn flat_grid_gives_two_triangles_per_quad() {
-        let (p, g) = grid_of(5, 6, |r, c| Some(Vec3::new(c as f32, r as f32, 0.0)));
+        let (p, g) = grid_of(5, 6, |r, c| Some(Vec3::new(c as f32, r as f32, -1.0)));
         let t = triangulate_grid(&p, &g).unwrap();
         assert_eq!(t.len(), 2 * 4 * 5);
         // Total area = 4 × 5.
@@ -198,15 +309,41 @@ mod tests {
         // A plane seen at grazing incidence: column spacing 10× the row spacing, smoothly
         // growing; every quad kept.
         let (p, g) = grid_of(6, 10, |r, c| {
-            Some(Vec3::new(0.1 * (c as f32).powf(1.2), r as f32 * 0.01, 0.0))
+            Some(Vec3::new(0.1 * (c as f32).powf(1.2), r as f32 * 0.01, -1.0))
         });
         assert_eq!(triangulate_grid(&p, &g).unwrap().len(), 2 * 5 * 9);
     }
 
     #[test]
+    fn thin_foreground_is_cut_from_its_background_and_sized_by_its_own_cells() {
+        // A one-column post at depth 2 before a wall at depth 5: the ratio test alone keeps
+        // the jump edges (both neighbours of a jump are jumps), the line of sight drops them.
+        let (p, g) = grid_of(8, 9, |r, c| {
+            let (x, y) = (c as f32 * 0.01 - 0.04, r as f32 * 0.01);
+            Some(if c == 4 {
+                Vec3::new(2.0 * x, 2.0 * y, 2.0)
+            } else {
+                Vec3::new(5.0 * x, 5.0 * y, 5.0)
+            })
+        });
+        let t = triangulate_grid(&p, &g).unwrap();
+        assert!(t.iter().all(|t| {
+            let zs = t.map(|i| p[i as usize].z);
+            zs.iter().all(|&z| z == zs[0])
+        }));
+        let rad = vec![1.0f32; p.len()];
+        let r = grid_radii(&p, &g, View::Origin, &rad).unwrap();
+        for (i, q) in p.iter().enumerate() {
+            // Post cells are 0.02 apart (rows only), wall cells 0.05.
+            let want = if q.z == 2.0 { 0.75 * 0.02 } else { 0.75 * 0.05 };
+            assert!((r[i] - want).abs() < 1e-4, "{i} {q} {}", r[i]);
+        }
+    }
+
+    #[test]
     fn holes_and_bad_grids() {
         let (p, g) = grid_of(3, 3, |r, c| {
-            (!(r == 1 && c == 1)).then(|| Vec3::new(c as f32, r as f32, 0.0))
+            (!(r == 1 && c == 1)).then(|| Vec3::new(c as f32, r as f32, -1.0))
         });
         // Every block has 3 cells: one triangle each.
         assert_eq!(triangulate_grid(&p, &g).unwrap().len(), 4);

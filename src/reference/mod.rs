@@ -19,26 +19,40 @@
 //! for a seed, independent of the thread count and of the other points.
 //!
 //! **Self-hits.** A query point lies on its own surfel and among neighbouring surfels of the
-//! same surface, from its own scan and from others. Two rules keep them out:
+//! same surface, from its own scan and from others. A ray must not be stopped by the sampled
+//! surface it starts from; three rules keep it out (measured against exact mesh ground
+//! truth, `docs/reference.md`):
 //! 1. the ray starts at `p + n·ε`, `ε = 0.01·rad(p)` (at least 16 f32 ulps of `p`), so the
 //!    point's own disk and coplanar neighbours are behind the origin;
 //! 2. a surfel hit from its back side (`d·n_q > 0`: the ray leaves through the disk in the
-//!    direction the disk faces) closer than `2·(rad(p) + rad(q))` is ignored. On a convex
-//!    surface every neighbour's tangent disk overhangs the query point and is met from behind
-//!    by rays leaving the surface; so are the slightly raised surfels of noise or of another
-//!    scan of the same surface. Real occluders within that distance are nearly always seen
-//!    from their front (the side their scanner saw), and are kept.
+//!    direction the disk faces) closer than `2·(rad(p) + rad(q))` is ignored: on a convex
+//!    surface every neighbour's tangent disk overhangs the query point;
+//! 3. own patch: any hit closer than `2·rad(p)` on a surface whose normal is within 60° of
+//!    the point's (`|n_q·n_p| > 0.5`, either side) is ignored: neighbours tilted by normal
+//!    error or noise, the co-located samples of another scan lifted by a registration
+//!    residual, a grid triangle cutting the corner of a crease. A real occluder that close
+//!    faces across (the wall of a crease) and is kept.
 //!
-//! Triangles have no back-side rule (a mesh's own faces at a convex vertex lie below the
-//! tangent plane). Measured with 256 rays per point (`tests/reference.rs`, which asserts
-//! these bounds): an open plane of disks (exact `A = 1`) reads exactly 1; the outside of a
-//! sphere of radius 0.15 m sampled by 6000 disks (convex, exact 1) reads 1.0000 for
-//! `t_max = 0.4` and `∞`, but ≈ 0 without rule 2 (the overhanging neighbour disks close the
-//! hemisphere); the inside of the same sphere (concave, front hits, exact
-//! `6R²/t² − 32R³/(5t³)` = 0.50625 for `t_max = 0.4`) reads 0.5066 with or without rule 2.
+//! Each ray that had a hit discarded by these rules is counted per point
+//! ([`Reference::self_hits`], the `self_hits` column of the reference files): a large share
+//! shows where the value rests on the rules rather than on the data.
+//!
+//! **Sizes from the grid.** For scans with a native grid, [`surfel_radii`] gives each disk
+//! `0.75 ×` its longest kept grid edge instead of `rad(p)`: `rad(p)` spreads the 32 nearest
+//! neighbours over a disk, which swells the disks of one-cell-wide structures (a thin
+//! column far away, a silhouette) to several times their width and leaves gaps between the
+//! stretched cells of a grazing floor. Grid edges within 4° of the line of sight are dropped
+//! ([`MIN_VIEW_ANGLE_DEG`]): they join a foreground to its background where the ratio test
+//! cannot see the jump (both neighbours of a one-cell-wide foreground are jumps too).
+//!
 //! What the rules cost: occluders closer than `ε` to the point are missed (a bias of order
 //! `ε/t_max` in creases), and so are surfaces met from behind within `2·(rad(p) + rad(q))`
-//! (a thin shell seen from its unscanned side at less than a few point spacings).
+//! and surfaces nearly parallel to the point within `2·rad(p)` (a step lower than two
+//! sample spacings).
+//!
+//! **Self-check.** [`self_check`] examines a sample of points that the data itself shows to
+//! be open (nothing of any scan above a plane lifted a little over the tangent plane within
+//! `t_max`) and counts those the reference darkens.
 //!
 //! **Cost.** Rays of one point share their origin, so the descent to it is done once per
 //! point: the leaves whose box contains the origin give a short list of primitives that some
@@ -49,15 +63,7 @@
 //! Morton order (each keeps its own index as seed) so that consecutive points reuse the same
 //! nodes. No allocation per point or ray; rayon over points.
 //!
-//! Measured on the synthetic room (`benches/reference.rs`: 3.1 M surfels, every 10th point of
-//! one station, `t_max = 0.4`, 64 rays; rays per CPU-second, since the machine is shared):
-//! binary BVH of 32-byte nodes traced from the root 0.26 M (wall, loaded), with per-origin
-//! lists 1.3 M; 4-wide nodes 2.0 M; no per-call stack zeroing and a shared azimuth table
-//! 2.6 M; per-origin culling of the own surface 3.0 M; surfel test that rejects before
-//! dividing 3.8 M. Opening more of the tree per origin (near subtrees down to leaves) made it
-//! slower (1.8–2.3 M); the SAH leaf cost (1–3) and leaf cap (4–16) changed little, so the
-//! cheaper-memory setting is kept (134 MB for 3.1 M surfels). With `t_max = ∞` rays cross the
-//! room and end in cold memory: 0.8–0.9 M.
+//! Throughput: `cargo bench --bench reference`; the figures are in `docs/reference.md`.
 
 mod bvh;
 mod grid;
@@ -65,7 +71,10 @@ mod prim;
 pub(crate) mod sampling;
 mod wide;
 
-pub use grid::{triangulate_grid, EDGE_RATIO};
+pub use grid::{
+    grid_radii, triangulate_grid, triangulate_grid_seen, View, EDGE_RATIO, GRID_RADIUS_FACTOR,
+    MIN_VIEW_ANGLE_DEG,
+};
 
 use crate::error::{Error, Result};
 use bvh::Ray;
@@ -357,12 +366,22 @@ impl Scene {
         (t < far).then_some(t)
     }
 
-    /// Obscurance of one point (index `index` seeds its directions); `ctx` is scratch.
-    fn point(&self, p: Vec3, n: Vec3, r: f32, run: &Run, index: u64, ctx: &mut Contexts) -> f32 {
+    /// Obscurance of one point (index `index` seeds its directions) and the number of its
+    /// rays that met their own surface (hits discarded by the self-hit rules); `ctx` is
+    /// scratch.
+    fn point(
+        &self,
+        p: Vec3,
+        n: Vec3,
+        r: f32,
+        run: &Run,
+        index: u64,
+        ctx: &mut Contexts,
+    ) -> (f32, u32) {
         let (prm, az) = (&run.prm, &run.az);
         let n = n.normalize_or_zero();
         if n == Vec3::ZERO || !p.is_finite() {
-            return 1.0;
+            return (1.0, 0);
         }
         let r = if r > 0.0 && r.is_finite() { r } else { 0.0 };
         let eps = (ORIGIN_OFFSET * r).max(16.0 * f32::EPSILON * p.abs().max_element());
@@ -374,24 +393,138 @@ impl Scene {
         self.tris.origin(o, n, r, far, &mut ctx.tris);
         let (cs, ct, st) = (&ctx.surfels, &ctx.tris, &mut ctx.stack);
         let mut sum = 0.0f32;
+        let mut own = 0u32;
         if prm.tmax == f32::INFINITY {
             for j in 0..prm.rays {
-                let ray = Ray::new(o, pat.dir(j), r);
+                let ray = Ray::of_point(o, pat.dir(j), r, n);
                 if self.surfels.trace_origin::<true>(cs, &ray, far, st) == far
                     && self.tris.trace_origin::<true>(ct, &ray, far, st) == far
                 {
                     sum += 1.0;
                 }
+                own += (ray.discarded.get() > 0) as u32;
             }
         } else {
             for j in 0..prm.rays {
-                let ray = Ray::new(o, pat.dir(j), r);
+                let ray = Ray::of_point(o, pat.dir(j), r, n);
                 let t = self.surfels.trace_origin::<false>(cs, &ray, prm.tmax, st);
                 let t = self.tris.trace_origin::<false>(ct, &ray, t, st);
                 sum += rho(t, prm.tmax);
+                own += (ray.discarded.get() > 0) as u32;
             }
         }
-        (sum / prm.rays as f32).clamp(0.0, 1.0)
+        ((sum / prm.rays as f32).clamp(0.0, 1.0), own)
+    }
+}
+
+/// Height of the plane the self-check lifts above an open point, relative to `t_max` (or to
+/// the scene's extent when `t_max = ∞`); at least `2·rad(p)`.
+pub const OPEN_LIFT: f32 = 0.05;
+/// An open point reading below this is counted as darkened by the self-check.
+pub const OPEN_MIN_A: f32 = 0.9;
+
+/// The self-check of a reference run: points that the data itself shows to be open must
+/// read open.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SelfCheck {
+    /// Points examined (evenly spread over the input order).
+    pub sample: usize,
+    /// Of those, points with nothing of any scan above the plane lifted
+    /// `max(OPEN_LIFT·t_max, 2·rad(p))` over their tangent plane within `t_max`: open by the
+    /// data alone, so `A` should be near 1.
+    pub open: usize,
+    /// Open points whose reference reads below [`OPEN_MIN_A`].
+    pub darkened: usize,
+    /// Smallest reference value among the open points (1 when there is none).
+    pub min_open_a: f32,
+    /// Mean over the sample of the share of a point's rays that met its own surface.
+    pub mean_self_hit_share: f32,
+}
+
+/// Share of the open points the self-check lets read below [`OPEN_MIN_A`]: the open test
+/// looks only above a lifted plane, so a point beside a kerb lower than the lift may
+/// rightly read a little darker.
+pub const OPEN_DARKENED_MAX: f64 = 0.01;
+
+impl SelfCheck {
+    /// True when at most [`OPEN_DARKENED_MAX`] of the open points read darkened.
+    pub fn passed(&self) -> bool {
+        self.darkened as f64 <= OPEN_DARKENED_MAX * self.open as f64
+    }
+}
+
+/// Checks a computed reference `r` (values and per-point self-hit counts) on `sample` points
+/// spread evenly over the input: a point is *open* when the scene has nothing above the
+/// plane `max(OPEN_LIFT·t_max, 2·rad(p))` over its tangent plane within `t_max` (t_max = ∞:
+/// within the scene), in which case nearly every ray must escape; a darkened open point
+/// means the reference stops rays on something the data does not hold above it.
+pub fn self_check(
+    scene: &Scene,
+    points: &[Vec3],
+    normals: &[Vec3],
+    radii: &[f32],
+    r: &Reference,
+    prm: &RefParams,
+    sample: usize,
+) -> SelfCheck {
+    let (a, self_hits) = (&r.a, &r.self_hits);
+    let n = points
+        .len()
+        .min(normals.len())
+        .min(radii.len())
+        .min(a.len());
+    let m = sample.min(n);
+    let ((l1, h1), (l2, h2)) = (scene.surfels.bounds(), scene.tris.bounds());
+    let extent = (h1.max(h2) - l1.min(l2)).max_element().max(0.0);
+    let reach = if prm.tmax.is_finite() {
+        prm.tmax
+    } else {
+        extent.max(f32::MIN_POSITIVE) * 2.0
+    };
+    let found: Vec<(bool, f32, f32)> = (0..m)
+        .into_par_iter()
+        .map_init(Contexts::default, |ctx, k| {
+            let i = (k as u128 * n as u128 / m as u128) as usize;
+            let nn = normals[i].normalize_or_zero();
+            let share = self_hits.get(i).copied().unwrap_or(0) as f32 / prm.rays as f32;
+            if nn == Vec3::ZERO || !points[i].is_finite() {
+                return (false, 1.0, share);
+            }
+            let lift = (OPEN_LIFT * reach.min(extent)).max(2.0 * radii[i].max(0.0));
+            let o = points[i] + nn * lift;
+            let open = scene.surfels.nothing_above(o, nn, reach, &mut ctx.surfels)
+                && scene.tris.nothing_above(o, nn, reach, &mut ctx.tris);
+            (open, a[i], share)
+        })
+        .collect();
+    let open: Vec<f32> = found.iter().filter(|f| f.0).map(|f| f.1).collect();
+    SelfCheck {
+        sample: m,
+        open: open.len(),
+        darkened: open.iter().filter(|&&v| v < OPEN_MIN_A).count(),
+        min_open_a: open.iter().copied().fold(1.0, f32::min),
+        mean_self_hit_share: if m > 0 {
+            found.iter().map(|f| f.2).sum::<f32>() / m as f32
+        } else {
+            0.0
+        },
+    }
+}
+
+/// How scan `s` is seen, for the grid rules ([`View`]).
+pub fn scan_view(s: &crate::scan::Scan) -> View {
+    match s.sensor_hint {
+        Some(crate::projection::SensorModel::Ortho) => View::Parallel(Vec3::Z),
+        _ => View::Origin,
+    }
+}
+
+/// Surfel radii of scan `s` for the reference: [`grid_radii`] on its native grid, else
+/// `rad` (that is `rad(p)`) unchanged.
+pub fn surfel_radii(s: &crate::scan::Scan, rad: &[f32]) -> Result<Vec<f32>> {
+    match &s.grid {
+        Some(g) => grid_radii(&s.points, g, scan_view(s), rad),
+        None => Ok(rad.to_vec()),
     }
 }
 
@@ -445,17 +578,31 @@ pub fn obscurance(
     prm: &RefParams,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<f32>> {
+    Ok(obscurance_counted(scene, points, normals, radii, prm, progress)?.0)
+}
+
+/// [`obscurance`] with, per point, the number of rays that met the point's own surface (a
+/// hit discarded by the self-hit rules): where that share is large the reference rests on
+/// the rules rather than on the data.
+pub fn obscurance_counted(
+    scene: &Scene,
+    points: &[Vec3],
+    normals: &[Vec3],
+    radii: &[f32],
+    prm: &RefParams,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Vec<f32>, Vec<u32>)> {
     prm.check()?;
     check_inputs(points, normals, radii)?;
     // Points are traced in Morton order so consecutive work touches the same part of the
     // hierarchy (the input order may be anything); each keeps its own index as its seed.
     let order = spatial_order(points);
     let run = Run::new(prm);
-    let vals: Vec<f32> = order
+    let vals: Vec<(f32, u32)> = order
         .par_chunks(CHUNK)
         .flat_map_iter(|chunk| {
             let mut ctx = Contexts::default();
-            let v: Vec<f32> = chunk
+            let v: Vec<(f32, u32)> = chunk
                 .iter()
                 .map(|&i| {
                     let i = i as usize;
@@ -467,10 +614,12 @@ pub fn obscurance(
         })
         .collect();
     let mut out = vec![1.0f32; points.len()];
-    for (&i, v) in order.iter().zip(vals) {
+    let mut own = vec![0u32; points.len()];
+    for (&i, (v, k)) in order.iter().zip(vals) {
         out[i as usize] = v;
+        own[i as usize] = k;
     }
-    Ok(out)
+    Ok((out, own))
 }
 
 /// Indices of `points` sorted along a Morton curve over their bounding box (non-finite points
@@ -557,8 +706,12 @@ pub fn convergence(
     let diffs: Vec<f32> = idx
         .par_iter()
         .map_init(Contexts::default, |ctx, &i| {
-            let a = scene.point(points[i], normals[i], radii[i], &r1, i as u64, ctx);
-            let b = scene.point(points[i], normals[i], radii[i], &r4, i as u64, ctx);
+            let a = scene
+                .point(points[i], normals[i], radii[i], &r1, i as u64, ctx)
+                .0;
+            let b = scene
+                .point(points[i], normals[i], radii[i], &r4, i as u64, ctx)
+                .0;
             (a - b).abs()
         })
         .collect();
@@ -593,6 +746,8 @@ fn per_second(count: u64, seconds: f64) -> f64 {
 pub struct Reference {
     /// `A` per query point.
     pub a: Vec<f32>,
+    /// Per query point, the rays that met the point's own surface (discarded hits).
+    pub self_hits: Vec<u32>,
     /// `|A_R − A_4R|` on a sample; timing fields from the main run.
     pub convergence: Convergence,
 }
@@ -609,12 +764,13 @@ pub fn reference(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Reference> {
     let start = Instant::now();
-    let a = obscurance(scene, points, normals, radii, prm, progress)?;
+    let (a, self_hits) = obscurance_counted(scene, points, normals, radii, prm, progress)?;
     let seconds = start.elapsed().as_secs_f64();
     let rays_cast = points.len() as u64 * prm.rays as u64;
     let conv = convergence(scene, points, normals, radii, prm, sample)?;
     Ok(Reference {
         a,
+        self_hits,
         convergence: Convergence {
             rays_cast,
             seconds,

@@ -10,6 +10,22 @@ use glam::Vec3;
 /// See the module documentation of `reference` for the measured bias.
 pub(crate) const BACK_NEAR: f32 = 2.0;
 
+/// Own-patch rule: a hit closer than `SELF_NEAR · rad(p)` on a surface facing within 60° of
+/// the query point's normal (`|n_q·n_p| > SELF_COS`) is the query point's own sampled
+/// surface — a neighbour tilted by normal error or noise, the co-located samples of another
+/// scan a registration residual lifts above it, a grid triangle cutting the corner of a
+/// crease — and is ignored. A real occluder that close faces across (a wall in a crease),
+/// and is kept. See the module documentation of `reference` for how it was chosen.
+pub(crate) const SELF_NEAR: f32 = 2.0;
+/// Cosine of the largest angle between the query point's normal and a surface taken as its
+/// own (60°).
+pub(crate) const SELF_COS: f32 = 0.5;
+
+/// Is a hit at distance `t` on a surface of unit normal `nq` the query point's own patch?
+#[inline(always)]
+fn own_patch(ray: &Ray, t: f32, nq: Vec3) -> bool {
+    t < SELF_NEAR * ray.r_self && ray.n_self.dot(nq).abs() > SELF_COS
+}
 /// An oriented disk (32 bytes).
 #[derive(Debug, Clone, Copy)]
 #[repr(C)]
@@ -38,11 +54,15 @@ impl Primitive for Surfel {
             return None;
         }
         let t = num / denom;
-        if !(t < t_hi) || (denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r)) {
+        if !(t < t_hi) {
             return None;
         }
         let q = ray.o + ray.d * t - self.c;
         if q.length_squared() > self.r2 {
+            return None;
+        }
+        if (denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r)) || own_patch(ray, t, self.n) {
+            ray.discard();
             return None;
         }
         Some(t)
@@ -99,7 +119,16 @@ impl Primitive for Triangle {
             return None;
         }
         let t = self.e2.dot(q) * inv;
-        (t > 0.0 && t < t_hi).then_some(t)
+        if !(t > 0.0 && t < t_hi) {
+            return None;
+        }
+        if t < SELF_NEAR * ray.r_self
+            && own_patch(ray, t, self.e1.cross(self.e2).normalize_or_zero())
+        {
+            ray.discard();
+            return None;
+        }
+        Some(t)
     }
 
     #[inline]

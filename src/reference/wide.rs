@@ -304,6 +304,28 @@ impl<P: Primitive> Bvh<P> {
         ctx.front_len = nf;
     }
 
+    /// Bounds of every primitive (an inverted box when empty).
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        if let Some(root) = self.nodes.first() {
+            for k in 0..4 {
+                if root.child[k] != EMPTY {
+                    let (a, b) = root.slot_box(k);
+                    lo = lo.min(a);
+                    hi = hi.max(b);
+                }
+            }
+        }
+        (lo, hi)
+    }
+
+    /// True when [`Bvh::origin`] found nothing any ray from `o` could meet within `t_max`
+    /// (no primitive nor box reaching above the plane through `o` normal to `n`).
+    pub fn nothing_above(&self, o: Vec3, n: Vec3, t_max: f32, ctx: &mut Origin) -> bool {
+        self.origin(o, n, 0.0, t_max, ctx);
+        !ctx.whole && ctx.near_len == 0 && ctx.front_len == 0
+    }
+
     /// [`Bvh::trace`] for a ray starting at the origin of `ctx` (built by [`Bvh::origin`]
     /// with a half-space containing the ray and a `t_max` at least `t_hi`).
     #[inline]

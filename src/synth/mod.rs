@@ -6,6 +6,9 @@
 //!
 //! [`run`] is the whole job: scene, station layout ([`station_layout`]), scans, files.
 
+mod mesh;
+mod mesh_run;
+mod meshes;
 mod output;
 mod prim;
 mod rng;
@@ -14,15 +17,16 @@ mod scene;
 
 pub mod reference;
 
+pub use mesh::{Mesh, MeshScene, MAX_TRIANGLES};
+pub use meshes::{colonnade, porch, relief, vaulted_room, MeshKind};
 pub use output::{describe_station, write_scan_ply};
 pub use prim::Prim;
-pub use scanner::{scan_scene, Station};
+pub use scanner::{scan_scene, scan_with_truth, Geometry, Station, Truth};
 pub use scene::{Hit, Scene, T_EPS};
 
 use crate::error::{Error, Result};
 use crate::io::align::{write_mlp, AlignEntry};
 use crate::projection::SensorModel;
-#[cfg(doc)]
 use crate::scan::Scan;
 use glam::{DMat4, DVec2, DVec3};
 use serde::Serialize;
@@ -101,9 +105,59 @@ pub struct SynthOptions {
     pub seed: u64,
     /// Output directory (created if missing).
     pub out_dir: PathBuf,
-    /// Also write the analytic reference obscurance of every point into
-    /// `out_dir/reference-analytic/`: (rays per point, t_max).
+    /// Also write the exact reference obscurance of every point into
+    /// `out_dir/reference-analytic/` (analytic scenes) or `out_dir/reference-mesh/` (mesh
+    /// scenes): (rays per point, t_max).
     pub reference: Option<(u32, f32)>,
+    /// Scan a triangle mesh instead of `scene` (see [`run`]).
+    pub mesh: Option<MeshSource>,
+    /// Mesh scenes: station positions (world), used in turn; empty = the scene's own.
+    pub at: Vec<DVec3>,
+    /// Mesh scenes: where perspective stations look; `None` = the scene's own.
+    pub look_at: Option<DVec3>,
+    /// Registration error written into the poses (mesh scenes).
+    pub registration: Registration,
+    /// Write the exact normals into the scans (real scans seldom carry them).
+    pub normals: bool,
+}
+
+/// A triangle mesh to scan: a file or a built-in scene.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MeshSource {
+    /// A PLY or OBJ mesh file (world coordinates, metres).
+    File(PathBuf),
+    /// A built-in mesh scene.
+    Builtin(MeshKind),
+}
+
+/// Size of the random rigid error put into each station's written pose: a rotation about
+/// the scanner's origin by exactly `angle_deg` about a random axis, then a shift by exactly
+/// `translation` metres in a random direction (drawn per station from the run's seed). The
+/// points stay where the true pose puts them, so a registration residual of that size
+/// separates the scans.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct Registration {
+    /// Shift, metres.
+    pub translation: f64,
+    /// Rotation, degrees.
+    pub angle_deg: f64,
+}
+
+impl Registration {
+    /// The local error transform of station `index` (identity when both sizes are 0).
+    pub fn error(&self, seed: u64, index: usize) -> DMat4 {
+        if self.translation == 0.0 && self.angle_deg == 0.0 {
+            return DMat4::IDENTITY;
+        }
+        let mut r = rng::SplitMix64::new(seed ^ 0x5EED_4E61_u64, index as u64);
+        let mut unit = || {
+            let v = DVec3::new(r.gaussian(), r.gaussian(), r.gaussian());
+            v.try_normalize().unwrap_or(DVec3::Z)
+        };
+        let (axis, shift) = (unit(), unit());
+        DMat4::from_translation(shift * self.translation)
+            * DMat4::from_axis_angle(axis, self.angle_deg.to_radians())
+    }
 }
 
 impl Default for SynthOptions {
@@ -119,6 +173,11 @@ impl Default for SynthOptions {
             seed: 1,
             out_dir: PathBuf::from("synth"),
             reference: None,
+            mesh: None,
+            at: Vec::new(),
+            look_at: None,
+            registration: Registration::default(),
+            normals: true,
         }
     }
 }
@@ -137,8 +196,10 @@ pub struct SynthFile {
 /// What [`run`] wrote.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SynthSummary {
-    /// The scene scanned.
+    /// The scene scanned (the analytic scene's kind; see `label` for mesh scenes).
     pub scene: SceneKind,
+    /// The scene's name: an analytic or built-in mesh scene's name, or the mesh file.
+    pub label: String,
     /// The sensor model used.
     pub model: SensorModel,
     /// Output directory.
@@ -276,17 +337,9 @@ pub fn station_poses(opts: &SynthOptions) -> Vec<DMat4> {
 /// `station_000.ply`, `station_001.ply`, … ([`write_scan_ply`]) and `alignment.mlp` with
 /// their poses into `opts.out_dir`.
 pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
-    if opts.stations == 0 || opts.stations > 10_000 {
-        return Err(Error::Param(format!(
-            "synthetic stations: {} out of 1..10000",
-            opts.stations
-        )));
-    }
-    if !(opts.noise.is_finite() && opts.noise >= 0.0) {
-        return Err(Error::Param(format!(
-            "synthetic noise {} must be a non-negative number of metres",
-            opts.noise
-        )));
+    check_options(opts)?;
+    if let Some(src) = &opts.mesh {
+        return mesh_run::run_mesh(opts, src);
     }
     let stations = station_layout(
         opts.scene,
@@ -314,7 +367,7 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
         comments.extend(describe_station(st));
         comments.push(format!("range_noise_sigma_m {} seed {seed}", opts.noise));
         let path = opts.out_dir.join(&file);
-        write_scan_ply(&scan, &path, &comments)?;
+        write_scan_ply(&without_normals(&scan, opts.normals), &path, &comments)?;
         files.push(SynthFile {
             path,
             station: i,
@@ -332,6 +385,7 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
                 &normals,
                 &radii,
                 &a,
+                None,
             )?;
         }
         entries.push(AlignEntry {
@@ -343,11 +397,47 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
     write_mlp(&alignment, &entries)?;
     Ok(SynthSummary {
         scene: opts.scene,
+        label: opts.scene.to_string(),
         model: opts.model,
         out_dir: opts.out_dir.clone(),
         files,
         alignment,
     })
+}
+
+/// `scan` as written: without its normals unless `keep`.
+fn without_normals(scan: &Scan, keep: bool) -> std::borrow::Cow<'_, Scan> {
+    if keep {
+        return std::borrow::Cow::Borrowed(scan);
+    }
+    let mut s = scan.clone();
+    s.normals = None;
+    std::borrow::Cow::Owned(s)
+}
+
+fn check_options(opts: &SynthOptions) -> Result<()> {
+    if opts.stations == 0 || opts.stations > 10_000 {
+        return Err(Error::Param(format!(
+            "synthetic stations: {} out of 1..10000",
+            opts.stations
+        )));
+    }
+    if !(opts.noise.is_finite() && opts.noise >= 0.0) {
+        return Err(Error::Param(format!(
+            "synthetic noise {} must be a non-negative number of metres",
+            opts.noise
+        )));
+    }
+    let reg = opts.registration;
+    let shift_ok = reg.translation.is_finite() && reg.translation >= 0.0;
+    let angle_ok = reg.angle_deg.is_finite() && (0.0..=180.0).contains(&reg.angle_deg);
+    if !(shift_ok && angle_ok) {
+        return Err(Error::Param(format!(
+            "registration error {} m / {}° must be non-negative (angle at most 180°)",
+            reg.translation, reg.angle_deg
+        )));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -448,6 +538,51 @@ mod tests {
         assert!(!base.out_dir.exists());
     }
 
+    #[test]
+    fn mesh_run_writes_truth_and_registration_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = SynthOptions {
+            mesh: Some(MeshSource::Builtin(MeshKind::Vault)),
+            stations: 2,
+            width: 64,
+            height: 32,
+            noise: 0.0,
+            out_dir: dir.path().join("m"),
+            reference: Some((32, f32::INFINITY)),
+            registration: Registration {
+                translation: 0.01,
+                angle_deg: 0.5,
+            },
+            normals: false,
+            ..SynthOptions::default()
+        };
+        let sum = run(&opts).unwrap();
+        assert_eq!(sum.label, "vault");
+        let al = crate::io::align::read_alignment(&sum.alignment).unwrap();
+        let (pos, _) = MeshKind::Vault.stations();
+        for (i, f) in sum.files.iter().enumerate() {
+            let ply = crate::io::ply::PlyFile::read_path(&f.path).unwrap();
+            assert!(ply.scalar_column("vertex", "nx").is_none());
+            let a = crate::accuracy::read_ao(
+                &dir.path()
+                    .join(format!("m/reference-mesh/station_{i:03}.ref.ply")),
+            )
+            .unwrap();
+            assert_eq!(a.len(), f.points);
+            // Inside the hall most of the sky is closed, yet the openings let some light in.
+            let mean = a.iter().sum::<f32>() / a.len() as f32;
+            assert!(mean > 0.02 && mean < 0.9, "{mean}");
+            // The written pose is off by exactly the registration error.
+            let e = Station::equirect(pos[i], 0.0, 1, 1).pose().inverse() * al.entries[i].pose;
+            let shift = e.transform_point3(DVec3::ZERO).length();
+            assert!((shift - 0.01).abs() < 1e-9, "{shift}");
+            let ang =
+                (glam::DQuat::from_mat4(&e).angle_between(glam::DQuat::IDENTITY)).to_degrees();
+            let yaw = (0.7 * i as f64).to_degrees();
+            assert!(ang > 0.0 && ang <= yaw + 0.5 + 1e-6, "{ang}");
+        }
+    }
+
     /// Needs the PLY writer (`PlyFile::from_vertex_columns`, `write_path`) and `write_mlp`.
     #[test]
     fn run_writes_plys_and_mlp() {
@@ -462,6 +597,7 @@ mod tests {
             seed: 9,
             out_dir: dir.path().join("synth"),
             reference: Some((16, 0.5)),
+            ..SynthOptions::default()
         };
         let sum = run(&opts).unwrap();
         assert_eq!(sum.files.len(), 3);

@@ -4,8 +4,9 @@
 //! Rays are generated in f64 from the same parameters the f32 [`Projection`] is built from,
 //! so `project(point)` maps every scanned point back to the centre of its pixel.
 
+use super::mesh::MeshScene;
 use super::rng::SplitMix64;
-use super::scene::{Scene, T_EPS};
+use super::scene::{Hit, Scene, T_EPS};
 use crate::error::{Error, Result};
 use crate::projection::{Model, Projection, SensorModel};
 use crate::scan::{Grid, Scan};
@@ -275,6 +276,45 @@ struct Sample {
     p: Vec3,
     n: Vec3,
     col: u32,
+    truth: Truth,
+}
+
+/// What the virtual scanner can scan: nearest hits along rays, and solid interiors (where a
+/// ray that starts records nothing).
+pub trait Geometry: Sync {
+    /// Nearest hit of `origin + t·dir` with `t ∈ (t_min, t_max)`.
+    fn intersect_range(&self, origin: DVec3, dir: DVec3, t_min: f64, t_max: f64) -> Option<Hit>;
+    /// True when `p` lies strictly inside a solid.
+    fn inside_solid(&self, _p: DVec3) -> bool {
+        false
+    }
+}
+
+impl Geometry for Scene {
+    fn intersect_range(&self, origin: DVec3, dir: DVec3, t_min: f64, t_max: f64) -> Option<Hit> {
+        Scene::intersect_range(self, origin, dir, t_min, t_max)
+    }
+    fn inside_solid(&self, p: DVec3) -> bool {
+        Scene::inside_solid(self, p)
+    }
+}
+
+impl Geometry for MeshScene {
+    fn intersect_range(&self, origin: DVec3, dir: DVec3, t_min: f64, t_max: f64) -> Option<Hit> {
+        self.intersect_skip(origin, dir, t_min, t_max, u32::MAX)
+    }
+}
+
+/// The exact surface under a scanned point: where the pixel's ray met the geometry before
+/// any noise, in world coordinates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Truth {
+    /// Noise-free world position.
+    pub p: DVec3,
+    /// Unit world normal of the primitive hit, turned towards the sensor.
+    pub n: DVec3,
+    /// Index of the primitive hit ([`Hit::prim`]).
+    pub prim: u32,
 }
 
 /// Scans `scene` from `station`: one ray per pixel centre `(x + 0.5, y + 0.5)`, the nearest
@@ -290,6 +330,18 @@ pub fn scan_scene(
     seed: u64,
     name: &str,
 ) -> Scan {
+    scan_with_truth(scene, station, noise_sigma, seed, name).0
+}
+
+/// [`scan_scene`] of any [`Geometry`], with the exact surface under every point (same
+/// order as the scan's points).
+pub fn scan_with_truth<G: Geometry>(
+    scene: &G,
+    station: &Station,
+    noise_sigma: f64,
+    seed: u64,
+    name: &str,
+) -> (Scan, Vec<Truth>) {
     let (w, h) = (station.width, station.height);
     let valid = station.validate().is_ok();
     let sensor = station.sensor();
@@ -331,6 +383,11 @@ pub fn scan_scene(
                     p: (o + d * t).as_vec3(),
                     n: n.as_vec3().normalize_or_zero(),
                     col: x as u32,
+                    truth: Truth {
+                        p: ow + rot * d * hit.t,
+                        n: (rot * n).normalize_or_zero(),
+                        prim: hit.prim as u32,
+                    },
                 });
             }
             out
@@ -341,15 +398,17 @@ pub fn scan_scene(
     let mut normals = Vec::with_capacity(total);
     let mut row = Vec::with_capacity(total);
     let mut col = Vec::with_capacity(total);
+    let mut truth = Vec::with_capacity(total);
     for (y, samples) in rows.iter().enumerate() {
         for s in samples {
+            truth.push(s.truth);
             points.push(s.p);
             normals.push(s.n);
             row.push(y as u32);
             col.push(s.col);
         }
     }
-    Scan {
+    let scan = Scan {
         name: name.to_string(),
         path: None,
         points,
@@ -366,7 +425,8 @@ pub fn scan_scene(
         skipped_nonfinite: 0,
         sensor_hint: Some(station.model),
         warnings: Vec::new(),
-    }
+    };
+    (scan, truth)
 }
 
 #[cfg(test)]
