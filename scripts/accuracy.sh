@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerates the "Accuracy and speed" figures of the README: the synthetic TLS room (three
+# Regenerates the figures of docs/accuracy.md: the synthetic TLS room (three
 # 800×400 stations, 0.96 M points, --radius 0.2 --tmax 0.4) and the bundled bunny (ten
 # scans, --radius 0.02 --tmax 0.04): ray-traced references, the sweep of both estimators
 # (SSAO only and MVAO N = 1, 3, 5), and, when pymeshlab is installed

@@ -154,7 +154,7 @@ pub fn run_mesh(opts: &SynthOptions, src: &MeshSource) -> Result<SynthSummary> {
             let a = mesh_obscurance(&scene, &truth, rays, tmax, 0);
             let (ts, normals) = truth_scan(&scan, &truth, true_pose);
             crate::io::reference::write_reference_ply(
-                &crate::accuracy::reference_path(&dir, &name),
+                &crate::io::reference::reference_path(&dir, &name),
                 &ts,
                 &normals,
                 &vec![0.0f32; ts.len()],

@@ -563,7 +563,7 @@ mod tests {
         for (i, f) in sum.files.iter().enumerate() {
             let ply = crate::io::ply::PlyFile::read_path(&f.path).unwrap();
             assert!(ply.scalar_column("vertex", "nx").is_none());
-            let a = crate::accuracy::read_ao(
+            let a = crate::io::reference::read_ao(
                 &dir.path()
                     .join(format!("m/reference-mesh/station_{i:03}.ref.ply")),
             )
