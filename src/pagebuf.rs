@@ -25,7 +25,7 @@ static KEEP: AtomicBool = AtomicBool::new(false);
 static POOL: Mutex<Vec<(usize, usize)>> = Mutex::new(Vec::new());
 
 /// From now on, keep dropped mappings for the next buffers instead of returning them to the
-/// system (see [`crate::sys::keep_freed_memory`], which decides when that fits).
+/// system (the memory probes decide when that fits).
 pub fn keep_freed() {
     KEEP.store(true, Ordering::Relaxed);
 }

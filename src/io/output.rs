@@ -1,6 +1,6 @@
 //! Writing PLY results: the input PLY with the AO added as `float` vertex properties for
 //! scripts, CloudCompare and MeshLab ([`ao_properties`]) and grey (or modulated) colours.
-//! Every file is written atomically. The preview pictures are [`crate::preview`]'s.
+//! Every file is written atomically. The preview pictures are written by the preview module.
 
 use super::ply::{PlyFile, PropertyKind, ScalarType};
 use crate::error::{Error, Result};

@@ -153,14 +153,7 @@ pub fn run_mesh(opts: &SynthOptions, src: &MeshSource) -> Result<SynthSummary> {
             std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
             let a = mesh_obscurance(&scene, &truth, rays, tmax, 0);
             let (ts, normals) = truth_scan(&scan, &truth, true_pose);
-            crate::io::reference::write_reference_ply(
-                &crate::io::reference::reference_path(&dir, &name),
-                &ts,
-                &normals,
-                &vec![0.0f32; ts.len()],
-                &a,
-                None,
-            )?;
+            super::write_truth(&dir, &name, &ts, &normals, &a)?;
         }
         files.push(SynthFile {
             path,

@@ -28,10 +28,10 @@ use crate::error::{Error, Result};
 use crate::io::align::{write_mlp, AlignEntry};
 use crate::projection::SensorModel;
 use crate::scan::Scan;
-use glam::{DMat4, DVec2, DVec3};
+use glam::{DMat4, DVec2, DVec3, Vec3};
 use serde::Serialize;
 use std::f64::consts::{FRAC_PI_4, PI, TAU};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Which built-in scene to scan.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -333,6 +333,19 @@ pub fn station_poses(opts: &SynthOptions) -> Vec<DMat4> {
     .collect()
 }
 
+/// Writes the exact obscurance `a` of a scan's points as a reference file in `dir` (no
+/// radii: the truth comes from the scene, not from surfels).
+fn write_truth(dir: &Path, name: &str, scan: &Scan, normals: &[Vec3], a: &[f32]) -> Result<()> {
+    crate::io::reference::write_reference_ply(
+        &crate::io::reference::reference_path(dir, name),
+        scan,
+        normals,
+        &vec![0.0f32; scan.len()],
+        a,
+        None,
+    )
+}
+
 /// Scans the chosen scene from `opts.stations` stations ([`station_layout`]) and writes
 /// `station_000.ply`, `station_001.ply`, … ([`write_scan_ply`]) and `alignment.mlp` with
 /// their poses into `opts.out_dir`.
@@ -378,15 +391,7 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
             std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
             let a = reference::analytic_obscurance(&scene, &scan, rays, tmax, 0);
             let normals = scan.normals.clone().unwrap_or_default();
-            let radii = vec![0.0f32; scan.len()];
-            crate::io::reference::write_reference_ply(
-                &crate::io::reference::reference_path(&dir, &name),
-                &scan,
-                &normals,
-                &radii,
-                &a,
-                None,
-            )?;
+            write_truth(&dir, &name, &scan, &normals, &a)?;
         }
         entries.push(AlignEntry {
             file,
