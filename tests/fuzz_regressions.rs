@@ -251,6 +251,74 @@ fn las_parse_evlr_start_beyond_the_file() {
     }
 }
 
+/// The peak resident memory of this process so far, in bytes (Linux only).
+fn peak_rss() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// `las_parse`: a 1.2 KB LAZ file with a layered point format (7, with extra bytes) whose
+/// chunk table describes no chunk made the decoder read a chunk anyway and allocate the layer
+/// size its first chunk states, 1.8 GB and 3.8 GB, before failing. The chunk table must now
+/// describe every point, and every chunk's layer sizes must fit in the chunk; a layer size
+/// corrupted in a valid file is refused the same way.
+#[test]
+fn las_parse_laz_layer_sizes_are_bounded() {
+    let before = peak_rss();
+    let scratch = fuzz_checks::Scratch::new("regr-laz-layers");
+    let p = scratch.file("s.laz");
+    for (name, bytes) in [
+        (
+            "1.8GB",
+            &include_bytes!("../fuzz/regressions/las_parse/laz-extra-bytes-layer-1.8GB")[..],
+        ),
+        (
+            "3.8GB",
+            &include_bytes!("../fuzz/regressions/las_parse/laz-extra-bytes-layer-3.8GB")[..],
+        ),
+    ] {
+        within(Duration::from_secs(5), name, || check_las(bytes));
+        std::fs::write(&p, &bytes[1..]).unwrap();
+        let e = read_las(&p).expect_err(name);
+        assert!(matches!(e, mvao::Error::Format { .. }), "{e:?}");
+        assert!(e.to_string().contains("chunk table"), "{e}");
+        assert!(e.to_string().contains("s.laz"), "{e}");
+    }
+    // A valid layered LAZ (point format 6 and above) reads; its first chunk's first layer
+    // size set to 3.75 GiB is refused before decoding.
+    let seed = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/las_parse/seed-table-laz14"),
+    )
+    .unwrap();
+    let file = &seed[1..];
+    let format = file[104] & 0x3f;
+    assert!(
+        format >= 6,
+        "the seed should be layered, point format {format}"
+    );
+    std::fs::write(&p, file).unwrap();
+    let n = read_las(&p).expect("the seed reads").len();
+    assert!(n > 0);
+    let offset = u32::from_le_bytes(file[96..100].try_into().unwrap()) as usize;
+    let record_len = u16::from_le_bytes(file[105..107].try_into().unwrap()) as usize;
+    let layer0 = offset + 8 + record_len + 4;
+    let mut b = file.to_vec();
+    b[layer0..layer0 + 4].copy_from_slice(&0xF000_0000u32.to_le_bytes());
+    check_las(&[&[1u8][..], &b].concat());
+    std::fs::write(&p, &b).unwrap();
+    let e = read_las(&p).expect_err("corrupt layer size");
+    assert!(e.to_string().contains("its layers claim"), "{e}");
+    if let (Some(a), Some(b)) = (before, peak_rss()) {
+        assert!(
+            b.saturating_sub(a) < 512 << 20,
+            "peak memory grew by {} bytes",
+            b - a
+        );
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Stored inputs and hand-made nasty inputs, one test per target
 // ---------------------------------------------------------------------------------------------

@@ -543,6 +543,9 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
         ));
     }
     let records = if compressed {
+        if let Some(v) = laszip.map(|i| &vlrs[i]) {
+            super::laz_check::check_layers(path, file_len, offset_to_points, count, &v.data)?;
+        }
         read_laz_points(path, file_len, offset_to_points, count, record_len)?
     } else {
         read_las_points(path, offset_to_points, count, record_len)?

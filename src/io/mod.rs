@@ -7,6 +7,7 @@ pub mod dataset;
 pub mod direct;
 pub mod e57_file;
 pub mod las_file;
+mod laz_check;
 pub mod output;
 pub mod ply;
 mod ply_retain;
