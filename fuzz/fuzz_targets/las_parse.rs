@@ -3,4 +3,7 @@
 
 use libfuzzer_sys::fuzz_target;
 
-fuzz_target!(|data: &[u8]| mvao_fuzz::check_las(data));
+fuzz_target!(|data: &[u8]| {
+    mvao_fuzz::scans::report_caught_panics();
+    mvao_fuzz::check_las(data)
+});

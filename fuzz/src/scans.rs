@@ -143,6 +143,16 @@ pub fn check_ptx(bytes: &[u8]) {
     }
 }
 
+/// Replaces libFuzzer's panic hook, which aborts on every panic, by one that only prints.
+/// The LAZ decoder is third-party code that asserts on corrupt arithmetic-coded streams; mvao
+/// catches those panics and reports a format error, which is the behaviour under test. A
+/// panic that escapes mvao still reaches libFuzzer's own `catch_unwind` and aborts, so it is
+/// still found.
+pub fn report_caught_panics() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| std::panic::set_hook(Box::new(|info| eprintln!("caught: {info}"))));
+}
+
 /// Target `las_parse`: the first byte chooses `.las` or `.laz`, the rest is the file. When it
 /// parses, every per-point accessor gives one value per record.
 pub fn check_las(data: &[u8]) {

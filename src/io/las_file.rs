@@ -47,6 +47,9 @@ const NO_LAZ: &str = "LAZ support not compiled in (build with --features laz)";
 const STD_LEN: [usize; 11] = [20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67];
 /// Points per batch when decoding LAZ and when writing.
 const BATCH: usize = 1 << 16;
+/// At most this many bytes of LAZ records are decoded at once.
+#[cfg(feature = "laz")]
+const BATCH_BYTES: usize = 4 << 20;
 /// Global-encoding bits of waveform data: 1 internal, 2 external.
 const WAVEFORM_BITS: u16 = 0b110;
 /// Size of an EVLR header.
@@ -749,12 +752,17 @@ fn read_laz_points(
         );
         let mut done = 0u64;
         while done < count {
-            let n = reader.fill_points(BATCH as u64, &mut batch).map_err(|e| {
-                Error::format(
-                    path,
-                    format!("corrupt or truncated LAZ data after point {done} of {count}: {e}"),
-                )
-            })?;
+            // A batch is bounded in bytes too: the record length comes from the header, and
+            // the decoder allocates a whole batch before decoding it.
+            let per_batch = (BATCH_BYTES / record_len.max(1)).clamp(1, BATCH);
+            let n = reader
+                .fill_points(per_batch as u64, &mut batch)
+                .map_err(|e| {
+                    Error::format(
+                        path,
+                        format!("corrupt or truncated LAZ data after point {done} of {count}: {e}"),
+                    )
+                })?;
             if n == 0 {
                 break;
             }

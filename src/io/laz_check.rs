@@ -4,12 +4,16 @@
 //! starts with one byte count per layer, and the decoder allocates each layer's buffer before
 //! reading it, so four corrupt bytes ask for up to 4 GiB. Every chunk's sizes are checked here
 //! against the chunk table and the file's length, so a corrupt file costs what it weighs.
+//! With variable-size chunks the decoder looks up each chunk's point count in the table and
+//! indexes past its end when the table describes fewer points than the header: that is
+//! refused here too.
 
 use std::path::Path;
 
 use crate::error::{Error, Result};
 
-/// Checks the chunk table and, for layered compression, every chunk's layer sizes.
+/// Checks the chunk table (layered compression or variable-size chunks) and, for layered
+/// compression, every chunk's layer sizes.
 /// `laszip_vlr` is the payload of the LASzip VLR; `offset` is the offset to point data and
 /// `count` the header's point count.
 #[cfg(feature = "laz")]
@@ -26,6 +30,23 @@ pub(crate) fn check_layers(
 
     let bad = |m: String| Error::format(path, m);
     let vlr = LazVlr::from_buffer(laszip_vlr).map_err(|e| bad(format!("bad LASzip VLR: {e}")))?;
+    // Two layouts the decoder does not refuse but cannot read (it panics on them).
+    if vlr.items().is_empty() {
+        return Err(bad("bad LASzip VLR: it lists no point items".into()));
+    }
+    // Summed wide: the decoder's own sum is 16 bits and overflows on a corrupt VLR.
+    let first_point: u64 = vlr.items().iter().map(|i| u64::from(i.size())).sum();
+    if first_point > u64::from(u16::MAX) {
+        return Err(bad(format!(
+            "bad LASzip VLR: its items add up to {first_point} bytes a point"
+        )));
+    }
+    let point_wise = laszip_vlr.get(..2) == Some(&[1, 0][..]);
+    if point_wise && vlr.uses_variable_size_chunks() {
+        return Err(bad(
+            "bad LASzip VLR: variable-size chunks without chunked compression".into(),
+        ));
+    }
     let layers_of = |t: LazItemType| -> Option<u64> {
         match t {
             LazItemType::Point14 => Some(9),
@@ -40,20 +61,25 @@ pub(crate) fn check_layers(
         .iter()
         .map(|i| layers_of(i.item_type()))
         .collect();
-    let Some(layers) = layered else {
-        // Point-wise compression reads its arithmetic-coded stream as it goes: nothing to bound.
+    if layered.is_none() && !vlr.uses_variable_size_chunks() {
+        // Point-wise compression in fixed-size chunks reads its arithmetic-coded stream as it
+        // goes: nothing to bound.
         return Ok(());
+    }
+    let n_layers: u64 = layered.as_ref().map_or(0, |l| l.iter().sum());
+    // The smallest chunk: for layers the first point raw, the point count and the layer
+    // sizes; point-wise, at least a byte.
+    let min_chunk = if layered.is_some() {
+        first_point + 4 + 4 * n_layers
+    } else {
+        1
     };
-    let n_layers: u64 = layers.iter().sum();
-    let first_point = vlr.items_size();
-    // The smallest chunk: the first point raw, the point count and the layer sizes.
-    let min_chunk = first_point + 4 + 4 * n_layers;
 
     let mut f = BufReader::new(File::open(path).map_err(|e| Error::io(path, e))?);
     f.seek(SeekFrom::Start(offset))
         .map_err(|e| Error::io(path, e))?;
     let table_at = read_table_offset(&mut f, offset, file_len)
-        .ok_or_else(|| bad("layered LAZ without a readable chunk table".into()))?;
+        .ok_or_else(|| bad("LAZ without a readable chunk table".into()))?;
     // The chunk count is plain bytes before the coded entries; bound it before the table
     // reader reserves memory for it.
     f.seek(SeekFrom::Start(table_at + 4))
@@ -80,6 +106,9 @@ pub(crate) fn check_layers(
         return Err(bad(format!(
             "corrupt LAZ chunk table: it describes {described} points, the header says {count}"
         )));
+    }
+    if layered.is_none() {
+        return Ok(());
     }
     let mut start = offset + 8;
     for (i, entry) in table.as_ref().iter().enumerate() {

@@ -489,5 +489,25 @@ fn recentre_offset(xyz: &[[f64; 3]]) -> DVec3 {
     if !lo.is_finite() || lo.abs().max(hi.abs()).max_element() <= RECENTRE_ABOVE {
         return DVec3::ZERO;
     }
-    ((lo + hi) * 0.5).round()
+    // Halved before the sum: coordinates near f64::MAX must not overflow to an infinite centre.
+    (lo * 0.5 + hi * 0.5).round()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recentre_offset_stays_finite_near_the_largest_coordinates() {
+        let big = f64::MAX * 0.9;
+        let off = recentre_offset(&[[big, 1.0, 1.0], [big * 0.99, 2.0e9, 1.0]]);
+        assert!(off.is_finite(), "{off:?}");
+        assert!(off.x > big * 0.98 && off.x <= big);
+        // Ordinary georeferenced coordinates: the rounded centre of the box.
+        let off = recentre_offset(&[
+            [500_000.5, 4_000_000.0, 10.0],
+            [500_101.5, 4_000_050.0, 30.0],
+        ]);
+        assert_eq!(off, DVec3::new(500_051.0, 4_000_025.0, 20.0));
+    }
 }
