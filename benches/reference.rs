@@ -83,6 +83,7 @@ fn main() {
         let prm = RefParams {
             rays,
             tmax,
+            falloff: Default::default(),
             seed: 1,
         };
         let cpu0 = cpu_seconds();

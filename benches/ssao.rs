@@ -24,6 +24,7 @@ fn main() {
         estimator: Estimator::Horizon,
         radius: 0.2,
         tmax: 0.4,
+        falloff: Default::default(),
         samples: 32,
         directions: 8,
         steps: 8,

@@ -46,6 +46,7 @@ fn main() -> anyhow::Result<()> {
                 params: RefParams {
                     rays,
                     tmax,
+                    falloff: Default::default(),
                     seed: 0,
                 },
                 geometry: Geometry::Surfels,
@@ -106,7 +107,7 @@ fn main() -> anyhow::Result<()> {
             });
             keep.push(i);
         }
-        let t = mesh_obscurance(&scene, &truth, rays, tmax, 0);
+        let t = mesh_obscurance(&scene, &truth, rays, (tmax, Default::default()), 0);
         let j: Vec<f32> = keep.iter().map(|&i| joint[i]).collect();
         let a: Vec<f32> = keep.iter().map(|&i| own[i]).collect();
         println!(

@@ -71,7 +71,11 @@ fn run() -> anyhow::Result<()> {
         noise: num("noise", "0")?,
         seed: num("seed", "1")? as u64,
         out_dir: scans_dir.clone(),
-        reference: Some((num("truth_rays", "256")? as u32, tmax)),
+        reference: Some(mvao::reference::RefParams {
+            rays: num("truth_rays", "256")? as u32,
+            tmax,
+            ..Default::default()
+        }),
         registration: Registration {
             translation: reg.first().copied().unwrap_or(0.0),
             angle_deg: reg.get(1).copied().unwrap_or(0.0),
@@ -95,6 +99,7 @@ fn run() -> anyhow::Result<()> {
     let params = RefParams {
         rays: num("rays", "128")? as u32,
         tmax,
+        falloff: Default::default(),
         seed: 0,
     };
     let files: Vec<PathBuf> = sum.files.iter().map(|f| f.path.clone()).collect();

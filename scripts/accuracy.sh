@@ -31,16 +31,23 @@ bunny=(fixtures/stanford-bunny/*.ply)
     --reference "$dir/bunny-ref" -o "$dir/bunny-sweep" "${bunny[@]}"
 py="${MVAO_PYTHON:-python3}"
 if QT_QPA_PLATFORM=offscreen "$py" -c "import pymeshlab" 2>/dev/null; then
-    "$mvao" reference -q --force --tmax inf --rays 256 -o "$dir/bunny-ref-inf" "${bunny[@]}"
+    # pymeshlab computes plain ambient occlusion: mvao is swept at the same quantity
+    # (t_max = inf, no falloff) against a reference of it, and pymeshlab's row joins that sweep.
+    "$mvao" reference -q --force --tmax inf --falloff none --rays 256 -o "$dir/bunny-ref-inf" \
+        "${bunny[@]}"
+    "$mvao" sweep --force --quick --radius 0.02 --tmax inf --falloff none \
+        --dataset "bunny 10 scans, t_max inf" --reference "$dir/bunny-ref-inf" \
+        -o "$dir/bunny-sweep-inf" "${bunny[@]}"
     QT_QPA_PLATFORM=offscreen "$py" scripts/compare_pymeshlab.py "${bunny[@]}" \
         -o "$dir/bunny-pymeshlab" --force
     wall=$("$py" -c "import json,sys; print(json.load(open(sys.argv[1]))['timings_s']['filter'])" \
         "$dir/bunny-pymeshlab/pymeshlab.json")
-    "$mvao" eval --reference "$dir/bunny-ref-inf" --csv "$dir/bunny-sweep/sweep.csv" \
-        --dataset "bunny 10 scans" --method pymeshlab --directions 64 --wall-s "$wall" \
+    "$mvao" eval --reference "$dir/bunny-ref-inf" --csv "$dir/bunny-sweep-inf/sweep.csv" \
+        --dataset "bunny 10 scans, t_max inf" --method pymeshlab --directions 64 --wall-s "$wall" \
         "$dir"/bunny-pymeshlab/*.pymeshlab.ply | tail -1 | sed 's/^/pymeshlab vs t_max = inf reference: /'
-    "$mvao" plot "$dir/bunny-sweep/sweep.csv" --title "bunny 10 scans: e_A against wall time"
+    "$mvao" plot "$dir/bunny-sweep-inf/sweep.csv" \
+        --title "bunny 10 scans, plain AO (t_max inf): e_A against wall time"
 else
     echo "pymeshlab not importable by $py: its row is left out (see scripts/README.md)"
 fi
-echo "CSV and SVG in $dir/room-sweep and $dir/bunny-sweep"
+echo "CSV and SVG in $dir/room-sweep, $dir/bunny-sweep and $dir/bunny-sweep-inf"

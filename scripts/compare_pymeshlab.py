@@ -986,6 +986,8 @@ def run(args):
                    "D_f = sum over the filter's directions of max(n_f.w, 0); "
                    "1 = open, t_max = infinity",
         "mapping_checks": checks,
+        # The quantity, in the keys `mvao eval` reads to refuse a reference of another one.
+        "parameters": {"ssao": {"tmax": "inf", "falloff": "none"}},
         "max_edge_factor": args.max_edge_factor,
         "min_hit_m": min_hit or FILTER_TNEAR,
         "min_hit_from": (f"auto: {MIN_HIT_EDGES:g} x median edge" if args.min_hit == "auto"

@@ -72,7 +72,7 @@ pub struct RefScan {
 pub struct RefReport {
     /// mvao version.
     pub version: String,
-    /// Rays, t_max (null = ∞), seed.
+    /// Rays, t_max (`"inf"` = ∞), falloff, seed.
     pub params: RefParams,
     /// Geometry the rays hit.
     pub geometry: Geometry,
@@ -268,6 +268,15 @@ pub fn eval_files(reference_dir: &Path, results: &[PathBuf]) -> Result<Accuracy>
                 p.display(),
                 rp.display()
             )));
+        }
+        let dir = p.parent().unwrap_or(Path::new("."));
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        if let Some((t, f)) = crate::io::reference::run_falloff(dir)? {
+            crate::io::reference::check_reference_matches(reference_dir, t, f)?;
         }
         let a = read_ao(p)?;
         let r = read_ao(&rp)?;

@@ -2,6 +2,7 @@
 
 use crate::accuracy::{Geometry, RefConfig};
 use crate::config::{ComputeParams, Config};
+use crate::falloff::{parse_tmax, Falloff};
 use crate::io::dataset::{PlaceOptions, PoseOverride};
 use crate::io::output::ColorMode;
 use crate::io::source::Format;
@@ -66,9 +67,14 @@ pub struct MergeArgs {
     /// scene diagonal), within diagonal/100 and diagonal/10].
     #[arg(long)]
     pub radius: Option<f32>,
-    /// Obscurance falloff distance t_max in metres [default: 2 × radius].
-    #[arg(long)]
+    /// Obscurance falloff distance t_max in metres, or `inf` for plain ambient occlusion
+    /// (what pymeshlab computes) [default: 2 × radius].
+    #[arg(long, value_parser = tmax_flag)]
     pub tmax: Option<f32>,
+    /// Shape of the falloff ρ below t_max: smoothstep, linear, none, or exp:METRES (decay
+    /// length). `--tmax inf --falloff none` is plain ambient occlusion.
+    #[arg(long, default_value = "smoothstep", value_parser = Falloff::parse)]
+    pub falloff: Falloff,
     /// SSAO samples per pixel.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub samples: u32,
@@ -191,6 +197,9 @@ pub struct ReferenceArgs {
     /// value as the runs it will score.
     #[arg(long)]
     pub tmax: String,
+    /// Shape of the falloff below t_max (as for `merge`); use the runs' own.
+    #[arg(long, default_value = "smoothstep", value_parser = Falloff::parse)]
+    pub falloff: Falloff,
     /// What the rays hit.
     #[arg(long, value_enum, default_value_t = Geometry::Surfels)]
     pub geometry: Geometry,
@@ -222,6 +231,7 @@ impl ReferenceArgs {
             params: RefParams {
                 rays: self.rays,
                 tmax,
+                falloff: self.falloff,
                 seed: self.seed,
             },
             geometry: self.geometry,
@@ -232,17 +242,9 @@ impl ReferenceArgs {
     }
 }
 
-/// `--tmax`: a positive number of metres or `inf`.
-fn parse_tmax(s: &str, flag: &str) -> Result<f32, String> {
-    if matches!(s, "inf" | "infinity" | "Inf") {
-        return Ok(f32::INFINITY);
-    }
-    match s.parse::<f32>() {
-        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
-        _ => Err(format!(
-            "--{flag} must be a positive number of metres or 'inf', got '{s}'"
-        )),
-    }
+/// `--tmax` of `merge`, `prepare` and `sweep`: a positive number of metres or `inf`.
+fn tmax_flag(s: &str) -> Result<f32, String> {
+    parse_tmax(s, "tmax")
 }
 
 /// Flags of `mvao eval`.
@@ -298,9 +300,12 @@ pub struct SweepArgs {
     /// SSAO radius in metres [default: as `merge`'s].
     #[arg(long)]
     pub radius: Option<f32>,
-    /// t_max in metres [default: 2 × radius]; must match the reference's.
-    #[arg(long)]
+    /// t_max in metres or `inf` [default: 2 × radius]; must match the reference's.
+    #[arg(long, value_parser = tmax_flag)]
     pub tmax: Option<f32>,
+    /// Falloff below t_max (as for `merge`); must match the reference's.
+    #[arg(long, default_value = "smoothstep", value_parser = Falloff::parse)]
+    pub falloff: Falloff,
     /// Seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -437,6 +442,9 @@ pub struct SynthArgs {
     /// t_max (metres, or inf) of the analytic reference.
     #[arg(long, value_name = "T", default_value = "inf")]
     pub reference_tmax: String,
+    /// Falloff of the analytic reference below its t_max (as for `merge`).
+    #[arg(long, default_value = "smoothstep", value_parser = Falloff::parse)]
+    pub reference_falloff: Falloff,
     // Mesh scenes.
     /// Mesh scenes: a station position `X,Y,Z` (repeat for more; used in turn).
     #[arg(long = "at", value_name = "X,Y,Z", value_parser = parse_xyz)]
@@ -470,10 +478,12 @@ impl SynthArgs {
     /// Checks the values and turns them into the virtual scanner's options.
     pub fn into_options(self) -> Result<SynthOptions, String> {
         let reference = match self.reference_rays {
-            Some(r) => Some((
-                r.max(1),
-                parse_tmax(&self.reference_tmax, "reference-tmax")?,
-            )),
+            Some(r) => Some(RefParams {
+                rays: r.max(1),
+                tmax: parse_tmax(&self.reference_tmax, "reference-tmax")?,
+                falloff: self.reference_falloff,
+                seed: 0,
+            }),
             None => None,
         };
         let (scene, mesh) = match self.scene.to_ascii_lowercase().as_str() {
@@ -544,7 +554,6 @@ impl MergeArgs {
             }
         };
         pos("radius", self.radius)?;
-        pos("tmax", self.tmax)?;
         pos("dmax", self.dmax)?;
         if let Some(d) = self.dmin {
             if !(d >= 0.0 && d.is_finite()) {
@@ -573,6 +582,7 @@ impl MergeArgs {
             compute: ComputeParams {
                 radius: self.radius,
                 tmax: self.tmax,
+                falloff: self.falloff,
                 samples: self.samples,
                 directions: self.directions,
                 steps: self.steps,

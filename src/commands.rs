@@ -203,6 +203,7 @@ fn sweep(args: SweepArgs) -> anyhow::Result<()> {
         base: ComputeParams {
             radius: args.radius,
             tmax: args.tmax,
+            falloff: args.falloff,
             seed: args.seed,
             ..ComputeParams::default()
         },

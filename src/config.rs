@@ -2,6 +2,7 @@
 //! by the command line) and the parameters of the computation every stage reads. Depends on
 //! nothing but the small parameter types of the modules it configures.
 
+use crate::falloff::Falloff;
 use crate::io::dataset::PlaceOptions;
 use crate::io::output::ColorMode;
 use crate::io::source::Format;
@@ -53,8 +54,10 @@ pub struct Config {
 pub struct ComputeParams {
     /// SSAO radius; `None` = scene diagonal / 50.
     pub radius: Option<f32>,
-    /// t_max; `None` = 2·radius.
+    /// t_max (`f32::INFINITY` = plain ambient occlusion); `None` = 2·radius.
     pub tmax: Option<f32>,
+    /// Shape of ρ below t_max.
+    pub falloff: Falloff,
     /// Samples per pixel (paper estimator).
     pub samples: u32,
     /// Directions per pixel (horizon estimator).
@@ -86,6 +89,7 @@ impl Default for ComputeParams {
         ComputeParams {
             radius: None,
             tmax: None,
+            falloff: Falloff::Smoothstep,
             samples: 32,
             directions: 8,
             steps: 8,

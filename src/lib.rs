@@ -46,6 +46,7 @@ pub mod commands;
 pub mod config;
 pub mod error;
 pub mod eval;
+pub mod falloff;
 pub mod gbuffer;
 pub mod info;
 pub mod io;

@@ -8,7 +8,7 @@ use crate::config::ComputeParams;
 use crate::error::{Error, Result};
 use crate::eval::Metrics;
 use crate::io::dataset::{Dataset, PlaceOptions};
-use crate::io::reference::load_reference;
+use crate::io::reference::{check_reference_matches, load_reference};
 use crate::pipeline::compute;
 use crate::plot::{self, PlotPoint};
 use crate::progress::Silent;
@@ -163,6 +163,9 @@ pub fn run(cfg: &SweepConfig, progress: &dyn Fn(&str)) -> Result<Vec<Row>> {
             };
             let t0 = Instant::now();
             let c = compute(&ds.scans, &prm, &Silent)?;
+            if rows.is_empty() {
+                check_reference_matches(&cfg.reference, c.ssao.tmax, c.ssao.falloff)?;
+            }
             let wall = t0.elapsed().as_secs_f64();
             let ssao: Vec<Vec<f32>> = c.scans.iter().map(|r| r.ssao.clone()).collect();
             let ao: Vec<Vec<f32>> = c.scans.iter().map(|r| r.ao.clone()).collect();

@@ -34,6 +34,7 @@ fn check(offset: DVec3, model: SensorModel) {
         estimator: Estimator::Horizon,
         radius: 0.2,
         tmax: 0.4,
+        falloff: Default::default(),
         samples: 32,
         directions: 4,
         steps: 4,

@@ -86,6 +86,7 @@ fn prm(rays: u32, tmax: f32) -> RefParams {
     RefParams {
         rays,
         tmax,
+        falloff: Default::default(),
         seed: 7,
     }
 }

@@ -47,7 +47,11 @@ fn score(dir: &Path, c: &Case) -> (Metrics, Vec<SelfCheck>) {
         noise: c.noise,
         seed: 1,
         out_dir: scans.clone(),
-        reference: Some((rays, c.tmax)),
+        reference: Some(RefParams {
+            rays,
+            tmax: c.tmax,
+            ..RefParams::default()
+        }),
         registration: c.registration,
         normals: c.normals,
         ..SynthOptions::default()
@@ -65,6 +69,7 @@ fn score(dir: &Path, c: &Case) -> (Metrics, Vec<SelfCheck>) {
             params: RefParams {
                 rays,
                 tmax: c.tmax,
+                falloff: Default::default(),
                 seed: 0,
             },
             geometry: c.geometry,

@@ -24,6 +24,7 @@ fn params(seed: u64) -> SsaoParams {
         estimator: Estimator::Paper,
         radius: 0.2,
         tmax: 0.4,
+        falloff: Default::default(),
         samples: 8,
         directions: 8,
         steps: 8,

@@ -3,6 +3,7 @@
 //! `mvao reference`, read by `merge --reference` and `mvao eval`).
 
 use crate::error::{Error, Result};
+use crate::falloff::{show_tmax, tmax_from_json, Falloff};
 use crate::io::ply::{PlyFile, ScalarType};
 use crate::scan::Scan;
 use glam::Vec3;
@@ -110,4 +111,70 @@ pub fn load_reference_named(dir: &Path, scans: &[(String, usize)]) -> Result<Vec
             Ok(a)
         })
         .collect()
+}
+
+/// The t_max and falloff recorded under `keys` (`params` of a `reference.json`,
+/// `parameters.ssao` of a run's `report.json`) in `file`; `None` when the file or the entry
+/// is absent.
+fn recorded_falloff(file: &Path, keys: &[&str]) -> Result<Option<(f32, Falloff)>> {
+    if !file.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(file).map_err(|e| Error::io(file, e))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| Error::format(file, format!("is not valid JSON: {e}")))?;
+    let key = keys.join(".");
+    let Some(entry) = keys
+        .iter()
+        .try_fold(&v, |v, k| v.get(k))
+        .filter(|e| e.is_object())
+    else {
+        return Ok(None);
+    };
+    let tmax = entry
+        .get("tmax")
+        .and_then(tmax_from_json)
+        .ok_or_else(|| Error::format(file, format!("has no readable {key}.tmax")))?;
+    let falloff = match entry.get("falloff") {
+        None => Falloff::Smoothstep,
+        Some(f) => f
+            .as_str()
+            .and_then(|s| Falloff::parse(s).ok())
+            .ok_or_else(|| Error::format(file, format!("has an unknown {key}.falloff {f}")))?,
+    };
+    Ok(Some((tmax, falloff)))
+}
+
+/// Refuses to score a run at `tmax` with `falloff` against the reference in `dir` when its
+/// `reference.json` records other ones: the two would measure different quantities. A
+/// directory without `reference.json` (files gathered by hand) is taken on trust.
+pub fn check_reference_matches(dir: &Path, tmax: f32, falloff: Falloff) -> Result<()> {
+    let file = dir.join("reference.json");
+    let Some((rt, rf)) = recorded_falloff(&file, &["params"])? else {
+        return Ok(());
+    };
+    let same_t = rt == tmax || (rt - tmax).abs() <= 1e-6 * rt.abs().max(tmax.abs());
+    // At t_max = ∞ every falloff but the exponential is plain ambient occlusion.
+    let same_f = rf == falloff || (rf.blocks_fully(rt) && falloff.blocks_fully(tmax));
+    if same_t && same_f {
+        return Ok(());
+    }
+    Err(Error::Param(format!(
+        "{}: the reference was computed at t_max {} with falloff {rf}, the result at t_max {} \
+         with falloff {falloff}; score against a reference of the same t_max and falloff",
+        file.display(),
+        show_tmax(rt),
+        show_tmax(tmax),
+    )))
+}
+
+/// The t_max and falloff of the run whose results are in `dir`, from its `report.json` (or
+/// the `pymeshlab.json` of `scripts/compare_pymeshlab.py`), if there is one.
+pub fn run_falloff(dir: &Path) -> Result<Option<(f32, Falloff)>> {
+    for name in ["report.json", "pymeshlab.json"] {
+        if let Some(found) = recorded_falloff(&dir.join(name), &["parameters", "ssao"])? {
+            return Ok(Some(found));
+        }
+    }
+    Ok(None)
 }

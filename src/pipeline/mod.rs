@@ -278,9 +278,14 @@ pub fn run(cfg: &Config) -> Result<Report> {
     }
     if !cfg.quiet && !cfg.prepare_only {
         eprintln!(
-            "radius {:.4} m, tmax {:.4} m, dmin {:.3} m, dmax {:.3} m ({})",
+            "radius {:.4} m, tmax {}, falloff {}, dmin {:.3} m, dmax {:.3} m ({})",
             oc.ssao.radius,
-            oc.ssao.tmax,
+            if oc.ssao.tmax.is_finite() {
+                format!("{:.4} m", oc.ssao.tmax)
+            } else {
+                "inf".into()
+            },
+            oc.ssao.falloff,
             oc.merge.dmin,
             oc.merge.dmax,
             if oc.defaults_note.is_empty() {
@@ -359,6 +364,9 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
         diagonal: robust_diagonal(&cat.samples),
         spacing: crate::radius::combined_spacing(&cat.spacings),
     })?;
+    if let Some(d) = cfg.reference.as_ref().filter(|_| refs.is_some()) {
+        crate::io::reference::check_reference_matches(d, sp.tmax, sp.falloff)?;
+    }
     cat.samples = Vec::new();
     // The report is written last and marks a complete set: a rerun over an earlier one drops
     // the old report first, so a run that stops half way does not leave new outputs beside

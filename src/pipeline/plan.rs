@@ -101,6 +101,7 @@ pub fn ssao_params(
         estimator: prm.estimator,
         radius,
         tmax,
+        falloff: prm.falloff,
         samples: prm.samples,
         directions: prm.directions,
         steps: prm.steps,

@@ -77,6 +77,7 @@ pub use grid::{
 };
 
 use crate::error::{Error, Result};
+pub use crate::falloff::Falloff;
 use bvh::Ray;
 use glam::{DMat3, DMat4, Vec3};
 use prim::{Surfel, Triangle};
@@ -102,7 +103,10 @@ pub struct RefParams {
     pub rays: u32,
     /// Falloff distance of ρ in the scene frame's units (> 0; `f32::INFINITY` = plain
     /// cosine-weighted ambient occlusion).
+    #[serde(serialize_with = "crate::falloff::serialize_tmax")]
     pub tmax: f32,
+    /// Shape of ρ below `t_max`.
+    pub falloff: Falloff,
     /// Seed of the per-point direction sets.
     pub seed: u64,
 }
@@ -113,6 +117,7 @@ impl Default for RefParams {
         RefParams {
             rays: DEFAULT_RAYS,
             tmax: f32::INFINITY,
+            falloff: Falloff::Smoothstep,
             seed: 0,
         }
     }
@@ -136,14 +141,10 @@ impl RefParams {
     }
 }
 
-/// `ρ(d) = smoothstep(0, t_max, d)`; 1 for `d ≥ t_max` (a miss).
+/// The default falloff `ρ(d) = smoothstep(0, t_max, d)`; 1 for `d ≥ t_max` (a miss).
 #[inline]
 pub fn rho(d: f32, tmax: f32) -> f32 {
-    if !(d < tmax) {
-        return 1.0;
-    }
-    let x = (d / tmax).clamp(0.0, 1.0);
-    x * x * (3.0 - 2.0 * x)
+    Falloff::Smoothstep.rho(d, tmax)
 }
 
 /// Collects primitives in one frame; [`SceneBuilder::build`] makes the [`Scene`].
@@ -394,7 +395,7 @@ impl Scene {
         let (cs, ct, st) = (&ctx.surfels, &ctx.tris, &mut ctx.stack);
         let mut sum = 0.0f32;
         let mut own = 0u32;
-        if prm.tmax == f32::INFINITY {
+        if prm.falloff.blocks_fully(prm.tmax) {
             for j in 0..prm.rays {
                 let ray = Ray::of_point(o, pat.dir(j), r, n);
                 if self.surfels.trace_origin::<true>(cs, &ray, far, st) == far
@@ -407,9 +408,9 @@ impl Scene {
         } else {
             for j in 0..prm.rays {
                 let ray = Ray::of_point(o, pat.dir(j), r, n);
-                let t = self.surfels.trace_origin::<false>(cs, &ray, prm.tmax, st);
+                let t = self.surfels.trace_origin::<false>(cs, &ray, far, st);
                 let t = self.tris.trace_origin::<false>(ct, &ray, t, st);
-                sum += rho(t, prm.tmax);
+                sum += prm.falloff.rho(t, prm.tmax);
                 own += (ray.discarded.get() > 0) as u32;
             }
         }

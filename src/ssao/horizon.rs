@@ -32,9 +32,12 @@
 //! # Marching a half-plane
 //!
 //! A half-plane through the sensor direction is seen as a half-line of the image starting at
-//! `p`'s pixel (exactly for pinhole and orthographic sensors; on an equirectangular map the
-//! image of the plane is a great circle and the straight line is its tangent, a close
-//! approximation inside a `t_max` disk away from the poles). Marching it outward gives samples
+//! `p`'s pixel (exactly for pinhole and orthographic sensors). On an equirectangular map the
+//! image of the plane is a great circle: where the `t_max` sphere spans less than 0.25 rad
+//! seen from the sensor, its tangent line is marched (a close approximation); beyond, the
+//! circle itself, in equal steps of angle. Seen from the sensor at angle `φ` from `p`, a
+//! sample hides only the directions `γ < π − φ` (rays at larger `γ` never come that far
+//! round), so on the circle a sample raises the horizon only while `φ ≤ π − h`. Marching it outward gives samples
 //! with in-plane coordinates `X` (outward) and `Y` (towards the sensor), at angle
 //! `γ = atan2(X, Y)` from `V`. The horizon `h` starts at `hi` (the tangent plane). A sample with
 //! `γ_k < h` is visible from `p` and hides the directions `[γ_k, h]` behind it; then `h = γ_k`:
@@ -89,10 +92,10 @@
 //! footprint.
 
 use super::rng::Rng;
-use super::{AoMap, SsaoParams};
+use super::{AoMap, Falloff, SsaoParams};
 use crate::gbuffer::{GBuffer, EMPTY};
 use crate::pagebuf::PageBuf;
-use crate::projection::{atan2_4, fast_atan2, sqrt4, Projection};
+use crate::projection::{atan2_4, fast_atan2, sqrt4, Projection, SensorModel};
 use glam::{BVec4A, Vec3A, Vec4};
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
@@ -184,14 +187,31 @@ fn positions(g: &GBuffer) -> PageBuf<Vec3A> {
 const LANES: usize = 4;
 
 /// Up to [`LANES`] half-plane marches of one pixel: lane `l < n` starts at `q[l]` (48.16 fixed
-/// point), moves by `step[l]` and takes `count[l]` samples into `hz[l]`.
+/// point), moves by `step[l]` and takes `count[l]` samples into `hz[l]`; on an
+/// equirectangular map it follows the great circle `arc[l]` instead.
 #[derive(Debug, Default)]
 struct Group {
     n: usize,
     hz: [Horizon; LANES],
     q: [(i64, i64); LANES],
     step: [(i64, i64); LANES],
+    arc: [Arc; LANES],
+    /// This pixel's marches follow `arc`, not `q` and `step`.
+    arc_on: bool,
     count: [u32; LANES],
+}
+
+/// A half-plane's image on a spherical map: the great circle of directions
+/// `cos φ·d + sin φ·u` from the sensor (`d` towards the pixel's point, `u ⊥ d` the half-plane's
+/// direction), sampled at `φ` advancing by a fixed angle.
+#[derive(Debug, Clone, Copy, Default)]
+struct Arc {
+    d: Vec3A,
+    u: Vec3A,
+    /// `(cos φ, sin φ)` of the next sample.
+    cs: (f32, f32),
+    /// `(cos, sin)` of the angle between samples.
+    rot: (f32, f32),
 }
 
 /// What one direction adds to `Σ T` and `Σ S`.
@@ -219,6 +239,10 @@ struct Frame {
     iry2: f32,
     o: (f32, f32),
     fo: (f32, f32),
+    /// On a spherical map: the pixels per radian of arc of a unit screen derivative (the
+    /// point's distance, over the derivative's metres), and the angle from the point within
+    /// which the t_max sphere lies; `None` elsewhere.
+    arc: Option<(f32, f32)>,
 }
 
 /// The pixel's random numbers and the `(sin, cos)` of the next direction's angle.
@@ -247,8 +271,8 @@ struct Ctx<'a> {
     pts: &'a [Vec3A],
     proj: &'a Projection,
     tmax: f32,
-    /// `1/t_max` (0 when `t_max = ∞`: `ρ ≡ 0` in range).
-    inv_tmax: f32,
+    /// The falloff as the quadrature evaluates it.
+    rho: Rho,
     /// `t_max²`, or 0 when `t_max ≤ 0` (every sample then ignored: `ρ ≡ 1`).
     tmax2: f32,
     directions: u32,
@@ -262,6 +286,8 @@ struct Ctx<'a> {
     wf: f32,
     hf: f32,
     wrap: bool,
+    /// Equirectangular: half-planes that reach far are marched along their great circles.
+    sphere: bool,
 }
 
 impl<'a> Ctx<'a> {
@@ -276,7 +302,7 @@ impl<'a> Ctx<'a> {
             pts,
             proj,
             tmax: prm.tmax,
-            inv_tmax: 1.0 / prm.tmax,
+            rho: Rho::new(prm.falloff, prm.tmax),
             tmax2,
             directions: prm.directions.max(1),
             rot: (TAU / prm.directions.max(1) as f32).sin_cos(),
@@ -287,6 +313,7 @@ impl<'a> Ctx<'a> {
             wf: g.width as f32,
             hf: g.height as f32,
             wrap: proj.wrap_x,
+            sphere: proj.sensor_model() == SensorModel::Equirect,
         }
     }
 
@@ -355,14 +382,30 @@ impl<'a> Ctx<'a> {
             eps = 1e-3;
         }
         let (e1, e2) = view.any_orthonormal_pair();
-        // Only the directions of d1, d2 matter (the march is normalised to the t_max ellipse).
-        let (d1, d2) = match (proj.image_derivative(p, e1), proj.image_derivative(p, e2)) {
-            (Some(a), Some(b)) => (Some(a), Some(b)),
+        // The directions of d1, d2 set the march; their length (pixels per `per_m` metres)
+        // matters only on a spherical map, to turn pixels into angles.
+        let (d1, d2, per_m) = match (proj.image_derivative(p, e1), proj.image_derivative(p, e2)) {
+            (Some(a), Some(b)) => (Some(a), Some(b), 1.0),
             _ => (
                 self.screen_delta(pc.x, pc.y, proj.project(p + e1 * eps)),
                 self.screen_delta(pc.x, pc.y, proj.project(p + e2 * eps)),
+                eps,
             ),
         };
+        // On a spherical map a half-plane's image is a great circle; the straight image line
+        // of the march is its tangent, which stays within a small fraction of a radian of it
+        // up to ARC_FROM radians from the point and leaves it beyond.
+        const ARC_FROM: f32 = 0.25;
+        let dist = p.length();
+        let angle = if self.tmax < dist {
+            (self.tmax / dist).asin()
+        } else {
+            // The t_max sphere holds the sensor: the whole half circle.
+            0.999 * PI
+        };
+        // The sensor is the map's origin: the point's distance turns metres ⊥ d into radians.
+        let arc = (self.sphere && angle > ARC_FROM).then_some((dist / per_m, angle));
+        grp.arc_on = arc.is_some();
         let a = nrm.dot(view);
         let (pa, na, va) = (Vec3A::from(p), Vec3A::from(nrm), Vec3A::from(view));
         let (e1, e2) = (Vec3A::from(e1), Vec3A::from(e2));
@@ -390,6 +433,7 @@ impl<'a> Ctx<'a> {
             iry2,
             o: (ox, oy),
             fo: (fox, foy),
+            arc,
         };
         let (mut sum_s, mut sum_t, mut any) = (0.0f32, 0.0f32, false);
         let mut left = self.directions;
@@ -495,16 +539,23 @@ impl<'a> Ctx<'a> {
             let (idx, idy) = (Vec4::ONE / dx, Vec4::ONE / dy);
             let ellipse =
                 Vec4::ONE / sqrt4(dx * dx * Vec4::splat(f.irx2) + dy * dy * Vec4::splat(f.iry2));
-            let mut reach = min_lanes(ellipse, exit_lanes(f.o.1, idy, self.hf));
-            reach = min_lanes(reach, Vec4::splat(self.wf + self.hf));
-            if !self.wrap {
-                reach = min_lanes(reach, exit_lanes(f.o.0, idx, self.wf));
-            }
+            // Pixels per radian of arc along each direction (spherical maps only).
+            let ppr = len * Vec4::splat(f.arc.map_or(0.0, |a| a.0));
+            let reach = if let Some((_, angle)) = f.arc {
+                ppr * Vec4::splat(angle)
+            } else {
+                let mut reach = min_lanes(ellipse, exit_lanes(f.o.1, idy, self.hf));
+                reach = min_lanes(reach, Vec4::splat(self.wf + self.hf));
+                if !self.wrap {
+                    reach = min_lanes(reach, exit_lanes(f.o.0, idx, self.wf));
+                }
+                reach
+            };
             let t0 = min_lanes(exit_lanes(f.fo.0, idx, 1.0), exit_lanes(f.fo.1, idy, 1.0));
             let span = reach - t0;
             let go = (dir_ok & span.cmpgt(Vec4::ZERO)).bitmask();
-            let [dx, dy, t0, span] = [dx, dy, t0, span].map(|v| v.to_array());
-            (dx, dy, t0, span, go)
+            let [dx, dy, t0, span, ppr] = [dx, dy, t0, span, ppr].map(|v| v.to_array());
+            (dx, dy, t0, span, ppr, go)
         });
         let okb = ok.bitmask();
         let (b, inv_r, lo, lo_s, lo_c, hi, hi_s, hi_c, g_lo, g_hi, open) = (
@@ -525,7 +576,7 @@ impl<'a> Ctx<'a> {
                 continue;
             }
             terms[l] = Term::Open(open[l]);
-            let Some((dx, dy, t0, span, go)) = &march else {
+            let Some((dx, dy, t0, span, ppr, go)) = &march else {
                 continue;
             };
             if go & (1 << l) == 0 {
@@ -549,15 +600,16 @@ impl<'a> Ctx<'a> {
                 slice,
                 us[l],
                 (dx[l], dy[l]),
-                t0[l],
-                span[l],
+                (t0[l], span[l]),
+                ppr[l],
                 jit[l],
             );
             terms[l] = Term::March(open[l], l);
         }
     }
 
-    /// Lane `l`'s march along unit screen direction `dir` from `t0`, over `span` pixels.
+    /// Lane `l`'s march along unit screen direction `dir` from `t0`, over `span` pixels (on
+    /// a spherical map along the great circle, `ppr` pixels to the radian).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn start(
@@ -568,8 +620,8 @@ impl<'a> Ctx<'a> {
         slice: Slice,
         u: Vec3A,
         (dx, dy): (f32, f32),
-        t0: f32,
-        span: f32,
+        (t0, span): (f32, f32),
+        ppr: f32,
         jitter: f32,
     ) {
         let count = (span as u32).clamp(1, self.steps);
@@ -586,8 +638,19 @@ impl<'a> Ctx<'a> {
         let t1 = t0 + jitter * step;
         let (ox, oy) = f.o;
         grp.hz[l] = Horizon::new(slice, fx, fy);
-        grp.q[l] = (fixed(ox + dx * t1), fixed(oy + dy * t1));
-        grp.step[l] = (fixed(dx * step), fixed(dy * step));
+        if f.arc.is_some() {
+            let (phi, dphi) = (t1 / ppr, step / ppr);
+            let ((s1, c1), (sd, cd)) = (phi.sin_cos(), dphi.sin_cos());
+            grp.arc[l] = Arc {
+                d: -f.va,
+                u,
+                cs: (c1, s1),
+                rot: (cd, sd),
+            };
+        } else {
+            grp.q[l] = (fixed(ox + dx * t1), fixed(oy + dy * t1));
+            grp.step[l] = (fixed(dx * step), fixed(dy * step));
+        }
         grp.count[l] = count;
     }
 
@@ -602,27 +665,37 @@ impl<'a> Ctx<'a> {
             };
             let open = slice.open();
             *term = Term::Open(open);
-            let Some((dx, dy)) =
-                f.d.and_then(|(d1, d2)| unit(co * d1.0 + s * d2.0, co * d1.1 + s * d2.1))
+            let Some((x, y)) =
+                f.d.map(|(d1, d2)| (co * d1.0 + s * d2.0, co * d1.1 + s * d2.1))
             else {
                 continue;
             };
+            let len = (x * x + y * y).sqrt();
+            if !(len > 0.0 && len.is_finite()) {
+                continue;
+            }
+            let (dx, dy) = (x / len, y / len);
             let (idx, idy) = (1.0 / dx, 1.0 / dy);
             let (ox, oy) = f.o;
-            let reach = (1.0 / (dx * dx * f.irx2 + dy * dy * f.iry2).sqrt())
-                .min(exit(oy, idy, self.hf))
-                .min(self.wf + self.hf);
-            let reach = if self.wrap {
-                reach
+            let ppr = len * f.arc.map_or(0.0, |a| a.0);
+            let reach = if let Some((_, angle)) = f.arc {
+                ppr * angle
             } else {
-                reach.min(exit(ox, idx, self.wf))
+                let reach = (1.0 / (dx * dx * f.irx2 + dy * dy * f.iry2).sqrt())
+                    .min(exit(oy, idy, self.hf))
+                    .min(self.wf + self.hf);
+                if self.wrap {
+                    reach
+                } else {
+                    reach.min(exit(ox, idx, self.wf))
+                }
             };
             let t0 = exit(f.fo.0, idx, 1.0).min(exit(f.fo.1, idy, 1.0));
             let span = reach - t0;
             if !(span > 0.0) {
                 continue;
             }
-            self.start(f, grp, l, slice, u, (dx, dy), t0, span, jitter);
+            self.start(f, grp, l, slice, u, (dx, dy), (t0, span), ppr, jitter);
             *term = Term::March(open, l);
         }
     }
@@ -631,6 +704,9 @@ impl<'a> Ctx<'a> {
     /// left the map (it leaves once: y is monotone, x wraps or is clipped).
     #[inline(always)]
     fn next_index(&self, grp: &mut Group, l: usize) -> Option<usize> {
+        if grp.arc_on {
+            return self.next_index_arc(&mut grp.arc[l]);
+        }
         let (qx, qy) = grp.q[l];
         let (mut ix, iy) = (qx >> 16, qy >> 16);
         grp.q[l] = (qx + grp.step[l].0, qy + grp.step[l].1);
@@ -644,6 +720,18 @@ impl<'a> Ctx<'a> {
             ix = ix.rem_euclid(self.w as i64);
         }
         let i = iy as usize * self.w as usize + ix as usize;
+        (i < self.pts.len()).then_some(i)
+    }
+
+    /// [`Ctx::next_index`] on a spherical map: the pixel of the arc's next direction, `None`
+    /// once it leaves the map (past the top or bottom row of a partial panorama).
+    #[inline(always)]
+    fn next_index_arc(&self, a: &mut Arc) -> Option<usize> {
+        let (c, s) = a.cs;
+        let w = a.d * c + a.u * s;
+        a.cs = (c * a.rot.0 - s * a.rot.1, s * a.rot.0 + c * a.rot.1);
+        let pr = self.proj.project(glam::Vec3::from(w))?;
+        let i = self.pixel_at(pr.x, pr.y)?;
         (i < self.pts.len()).then_some(i)
     }
 
@@ -661,6 +749,7 @@ impl<'a> Ctx<'a> {
         let (pax, pay, paz) = (Vec4::splat(pa.x), Vec4::splat(pa.y), Vec4::splat(pa.z));
         let (nax, nay, naz) = (Vec4::splat(na.x), Vec4::splat(na.y), Vec4::splat(na.z));
         let tmax2 = Vec4::splat(self.tmax2);
+        let plen = Vec4::splat(pa.length());
         let mut cos_h = [0.0f32; LANES];
         for (ch, h) in cos_h.iter_mut().zip(&grp.hz) {
             *ch = h.sc.1;
@@ -716,13 +805,21 @@ impl<'a> Ctx<'a> {
                 let raise = inside & height.cmpgt(Vec4::ZERO) & x.cmpgt(Vec4::ZERO);
                 let mut bits = raise.bitmask();
                 if bits != 0 {
-                    bits &= above_horizon_lanes(x, y, Vec4::from_array(cos_h)).bitmask();
+                    let ch = Vec4::from_array(cos_h);
+                    bits &= above_horizon_lanes(x, y, ch).bitmask();
+                    if grp.arc_on && bits != 0 {
+                        let (sx, sy, sz) = (vx + pax, vy + pay, vz + paz);
+                        let dq = (pax * sx + pay * sy) + paz * sz;
+                        let len = sqrt4((sx * sx + sy * sy) + sz * sz);
+                        let joins = (dq + ch * (len * plen)).cmpge(Vec4::ZERO);
+                        bits &= joins.bitmask();
+                    }
                     let (xs, ys) = (x.to_array(), y.to_array());
                     let (pxs, pys) = (prev_x.to_array(), prev_y.to_array());
                     while bits != 0 {
                         let l = bits.trailing_zeros() as usize;
                         bits &= bits - 1;
-                        grp.hz[l].raise(xs[l], ys[l], pxs[l], pys[l], self.inv_tmax);
+                        grp.hz[l].raise(xs[l], ys[l], pxs[l], pys[l], &self.rho);
                         cos_h[l] = grp.hz[l].sc.1;
                     }
                 }
@@ -764,8 +861,12 @@ impl<'a> Ctx<'a> {
                 };
                 let hz = &mut grp.hz[l];
                 let (x, y) = (v.dot(hz.fx), v.dot(hz.fy));
-                if height > 0.0 && x > 0.0 && above_horizon(x, y, hz.sc.1) {
-                    hz.raise(x, y, px, py, self.inv_tmax);
+                if height > 0.0
+                    && x > 0.0
+                    && above_horizon(x, y, hz.sc.1)
+                    && (!grp.arc_on || joins_horizon(pa, v, hz.sc.1))
+                {
+                    hz.raise(x, y, px, py, &self.rho);
                 }
                 (px, py) = (x, y);
             }
@@ -789,6 +890,20 @@ impl<'a> Ctx<'a> {
         let d = (dx, q.y - py);
         (d.0.is_finite() && d.1.is_finite()).then_some(d)
     }
+}
+
+/// Whether a sample at offset `v` from `p` (both relative to the sensor) extends the blocked
+/// directions `[h, hi]` of a half-plane on its own: seen from the sensor at angle `φ` from
+/// `p`, it hides only the directions `γ < π − φ` from `p` (rays at larger `γ` never come that
+/// far round), so it joins the horizon when `φ ≤ π − h`: `p·s ≥ −cos h·|s|·|p|` with
+/// `s = p + v`. The same arithmetic as the test in [`Ctx::march_lanes`].
+#[cfg(test)]
+fn joins_horizon(pa: Vec3A, v: Vec3A, cos_h: f32) -> bool {
+    let plen = pa.length();
+    let (sx, sy, sz) = (v.x + pa.x, v.y + pa.y, v.z + pa.z);
+    let dq = (pa.x * sx + pa.y * sy) + pa.z * sz;
+    let len = ((sx * sx + sy * sy) + sz * sz).sqrt();
+    dq + cos_h * (len * plen) >= 0.0
 }
 
 #[cfg(test)]
@@ -819,6 +934,36 @@ fn above_horizon_lanes(x: Vec4, y: Vec4, cos_h: Vec4) -> BVec4A {
 fn smooth(x: f32) -> f32 {
     let x = x.clamp(0.0, 1.0);
     x * x * (3.0 - 2.0 * x)
+}
+
+/// `ρ` with what the quadrature needs precomputed.
+#[derive(Debug, Clone, Copy)]
+struct Rho {
+    falloff: Falloff,
+    tmax: f32,
+    inv_tmax: f32,
+    /// `ρ ≡ 0` for every finite distance: blocked directions add nothing.
+    blocks_fully: bool,
+}
+
+impl Rho {
+    fn new(falloff: Falloff, tmax: f32) -> Rho {
+        Rho {
+            falloff,
+            tmax,
+            inv_tmax: 1.0 / tmax,
+            blocks_fully: falloff.blocks_fully(tmax),
+        }
+    }
+
+    /// `ρ(d)`; the default falloff by a multiplication, as [`super::rho`] computes it.
+    #[inline]
+    fn at(&self, d: f32) -> f32 {
+        match self.falloff {
+            Falloff::Smoothstep => smooth(d * self.inv_tmax),
+            f => f.rho(d, self.tmax),
+        }
+    }
 }
 
 /// `f32::min` on four lanes: the non-NaN operand when one is NaN.
@@ -1031,7 +1176,7 @@ impl Horizon {
     /// Raises the horizon to the sample at in-plane `(x, y)`, adding the blocked directions;
     /// `(px, py)` is the previous sample of the march (NaN before the first).
     #[inline(never)]
-    fn raise(&mut self, x: f32, y: f32, px: f32, py: f32, inv_tmax: f32) {
+    fn raise(&mut self, x: f32, y: f32, px: f32, py: f32, rho: &Rho) {
         let sl = &self.slice;
         let il = 1.0 / (x * x + y * y).sqrt();
         let (mut s, mut c) = (x * il, y * il);
@@ -1041,8 +1186,8 @@ impl Horizon {
         }
         let g_k = sl.g(s, c, gk);
         let full = self.g_h - g_k;
-        // ρ ≡ 0 in range when t_max = ∞; a negligible sliver is not worth the quadrature.
-        if full > 1e-7 && inv_tmax > 0.0 {
+        // ρ ≡ 0 for plain ambient occlusion; a negligible sliver is not worth the quadrature.
+        if full > 1e-7 && !rho.blocks_fully {
             let blocker = if px > 0.0 {
                 Blocker::Segment {
                     px,
@@ -1058,7 +1203,7 @@ impl Horizon {
                     x,
                 }
             };
-            self.acc += full * sl.mean_rho(blocker, (s, c), self.sc, inv_tmax);
+            self.acc += full * sl.mean_rho(blocker, (s, c), self.sc, rho);
         }
         self.h = gk;
         self.sc = (s, c);
@@ -1076,9 +1221,9 @@ impl Slice {
     /// The `f`-weighted mean of `ρ(r(γ))` over the arc from direction `e0` to `e1` (as
     /// `(sin, cos)`, at most π apart), by Simpson's rule on the end points and the bisector.
     #[inline]
-    fn mean_rho(&self, blocker: Blocker, e0: (f32, f32), e1: (f32, f32), inv_tmax: f32) -> f32 {
+    fn mean_rho(&self, blocker: Blocker, e0: (f32, f32), e1: (f32, f32), rho: &Rho) -> f32 {
         let m = unit(e0.0 + e1.0, e0.1 + e1.1).unwrap_or((1.0, 0.0));
-        let rho_at = |e: (f32, f32)| smooth(self.distance(blocker, e.0, e.1) * inv_tmax);
+        let rho_at = |e: (f32, f32)| rho.at(self.distance(blocker, e.0, e.1));
         let rho_m = rho_at(m);
         let cos = e0.0 * e1.0 + e0.1 * e1.1;
         // Under ~8° the midpoint is as good (ρ and f are smooth over the arc).
@@ -1127,6 +1272,7 @@ mod tests {
             estimator: Estimator::Horizon,
             radius: tmax,
             tmax,
+            falloff: Falloff::Smoothstep,
             samples: 32,
             directions,
             steps,
@@ -1380,6 +1526,12 @@ mod tests {
     /// Ray-traced obscurance of the analytic `waves` field at `p`: stratified cosine rays
     /// marched in steps of 0.1 and refined by bisection.
     fn waves_reference(p: Vec3, n: Vec3, tmax: f32) -> f32 {
+        waves_reference_with(p, n, tmax, Falloff::Smoothstep, f32::INFINITY)
+    }
+
+    /// [`waves_reference`] with any falloff, the field cut at the square `[0, size]²` (what a
+    /// map of that size holds: rays leaving it miss).
+    fn waves_reference_with(p: Vec3, n: Vec3, tmax: f32, falloff: Falloff, size: f32) -> f32 {
         let dirs = cosine_dirs(n, 40, 7);
         let dt = 0.1f32;
         let mut sum = 0.0f32;
@@ -1388,9 +1540,15 @@ mod tests {
                 let q = p + *w * t;
                 q.z < waves(q.x, q.y).0
             };
+            let gone = |t: f32| {
+                let q = p + *w * t;
+                // Above the highest crest and rising, or off the map: a miss.
+                (q.z > 13.5 && w.z >= 0.0)
+                    || !(q.x >= 0.0 && q.y >= 0.0 && q.x <= size && q.y <= size)
+            };
             let mut d = f32::INFINITY;
             let mut t = dt;
-            while t < tmax + dt {
+            while t < tmax + dt && !gone(t) {
                 if below(t) {
                     let (mut lo, mut hi) = (t - dt, t);
                     for _ in 0..20 {
@@ -1406,9 +1564,50 @@ mod tests {
                 }
                 t += dt;
             }
-            sum += rho(d, tmax);
+            sum += falloff.rho(d, tmax);
         }
         sum / dirs.len() as f32
+    }
+
+    #[test]
+    fn every_falloff_and_an_infinite_tmax_converge_to_the_ray_traced_height_field() {
+        let w = 160usize;
+        let (g, proj) = heightfield(w, w, 1.0, waves);
+        let picks: Vec<usize> = (0..12)
+            .flat_map(|yy| (0..12).map(move |xx| (20 + 10 * yy) * w + 20 + 10 * xx))
+            .collect();
+        let inf = f32::INFINITY;
+        for (tmax, falloff, limit) in [
+            (inf, Falloff::Smoothstep, 0.012),
+            (inf, Falloff::None, 0.012),
+            (inf, Falloff::Exp(20.0), 0.012),
+            (16.0, Falloff::Linear, 0.012),
+            (16.0, Falloff::None, 0.012),
+            (16.0, Falloff::Exp(20.0), 0.012),
+        ] {
+            let refs: Vec<(usize, f32)> = picks
+                .iter()
+                .map(|&i| {
+                    let a =
+                        waves_reference_with(g.position[i], g.normal[i], tmax, falloff, w as f32);
+                    (i, a)
+                })
+                .collect();
+            let (lo, hi) = refs
+                .iter()
+                .fold((1.0f32, 0.0f32), |(a, b), r| (a.min(r.1), b.max(r.1)));
+            let prm = SsaoParams {
+                falloff,
+                ..params(64, 64, tmax)
+            };
+            let e = mean_abs_error(&ssao(&g, &proj, &prm), &refs);
+            eprintln!("t_max {tmax} {falloff}: A in [{lo:.3}, {hi:.3}], mean |a − A| {e:.4}");
+            assert!(
+                hi - lo > 0.3,
+                "{tmax} {falloff}: A should span 0.3, [{lo}, {hi}]"
+            );
+            assert!(e < limit, "{tmax} {falloff}: {e}");
+        }
     }
 
     fn mean_abs_error(m: &AoMap, refs: &[(usize, f32)]) -> f32 {
@@ -1497,6 +1696,44 @@ mod tests {
             }
         }
         best
+    }
+
+    #[test]
+    fn equirect_courtyard_under_open_sky_converges_at_infinite_tmax() {
+        // A scanner 1.5 m above the floor of a 20 × 20 m court with 8 m walls and no roof:
+        // plain ambient occlusion reaches the far walls, tens of degrees round the great
+        // circles the half-planes image to.
+        let (w, h) = (512usize, 256usize);
+        let proj = equirect(w, h);
+        let (lo, hi) = (Vec3::new(-10.0, -10.0, -1.5), Vec3::new(10.0, 10.0, 6.5));
+        let court = |o: Vec3, d: Vec3| box_hit(o, d, lo, hi).filter(|b| b.1 != Vec3::NEG_Z);
+        let g = cast(&proj, court);
+        let mut rng = Rng::new(5, 0);
+        let mut picks = Vec::new();
+        while picks.len() < 300 {
+            let i = (rng.next_u64() % (w * h) as u64) as usize;
+            if g.is_valid(i) {
+                let (p, nrm) = (g.position[i], g.normal[i]);
+                let dirs = cosine_dirs(nrm, 24, i as u64);
+                let open = dirs
+                    .iter()
+                    .filter(|&&d| court(p + nrm * 1e-4, d).is_none())
+                    .count();
+                picks.push((i, open as f32 / dirs.len() as f32));
+            }
+        }
+        let (lo_a, hi_a) = picks
+            .iter()
+            .fold((1.0f32, 0.0f32), |(a, b), r| (a.min(r.1), b.max(r.1)));
+        assert!(hi_a - lo_a > 0.3, "A in [{lo_a}, {hi_a}]");
+        let inf = f32::INFINITY;
+        let errs: Vec<f32> = [(8, 8), (16, 32), (32, 64)]
+            .iter()
+            .map(|&(k, st)| mean_abs_error(&ssao(&g, &proj, &params(k, st, inf)), &picks))
+            .collect();
+        eprintln!("open court at t_max = ∞, A in [{lo_a:.3}, {hi_a:.3}]: mean |a − A| {errs:?}");
+        // Straight image lines instead of great circles stay near 0.21 at every budget.
+        assert!(errs[1] < 0.08 && errs[2] < 0.04, "{errs:?}");
     }
 
     #[test]
@@ -1664,9 +1901,10 @@ mod tests {
         }
 
         /// A sample at `(x, y)`, above `p`'s tangent plane or not.
-        fn add(&mut self, x: f32, y: f32, above: bool, inv_tmax: f32) {
+        fn add(&mut self, x: f32, y: f32, above: bool, tmax: f32) {
             if above && x > 0.0 && above_horizon(x, y, self.hz.sc.1) {
-                self.hz.raise(x, y, self.prev.0, self.prev.1, inv_tmax);
+                let rho = Rho::new(Falloff::Smoothstep, tmax);
+                self.hz.raise(x, y, self.prev.0, self.prev.1, &rho);
             }
             self.prev = (x, y);
         }
@@ -1687,7 +1925,7 @@ mod tests {
         let samples = [(1.0, 1.0), (2.0, 1.5), (2.5, 3.5)];
         let mut hz = Fed::new(sl);
         for (x, y) in samples {
-            hz.add(x, y, true, 1.0 / f32::INFINITY);
+            hz.add(x, y, true, f32::INFINITY);
         }
         let want = 6.25 / 18.5;
         assert!(
@@ -1701,7 +1939,7 @@ mod tests {
         let tmax = 4.0;
         let mut hz = Fed::new(sl);
         for (x, y) in samples {
-            hz.add(x, y, true, 1.0 / tmax);
+            hz.add(x, y, true, tmax);
         }
         let (g1, g3) = (FRAC_PI_2 / 2.0, 2.5f32.atan2(3.5));
         let parabola = |g: f64| g.cos() / (g.sin() * g.sin());
@@ -1720,7 +1958,7 @@ mod tests {
         let mut hz = Fed::new(sl);
         // γ = 116.6°, above the tangent plane (126.9°): tangent coordinate τ = 1.1, height
         // η = 0.2 (R = 1), parabola η = κτ².
-        hz.add(1.0, -0.5, true, 1.0 / 3.0);
+        hz.add(1.0, -0.5, true, 3.0);
         let gk = 1.0f32.atan2(-0.5);
         let parabola = |g: f64| {
             let (tw, ew) = (0.8 * g.sin() - 0.6 * g.cos(), 0.6 * g.sin() + 0.8 * g.cos());
@@ -1732,9 +1970,9 @@ mod tests {
         assert!((got - expect).abs() < 1e-4, "{got} vs {expect}");
         // Behind the line of V, below the tangent plane or below the current horizon: ignored.
         let before = hz.value();
-        hz.add(-1.0, 1.0, true, 1.0 / 3.0);
-        hz.add(1.0, 2.0, false, 1.0 / 3.0);
-        hz.add(1.0, -0.6, true, 1.0 / 3.0);
+        hz.add(-1.0, 1.0, true, 3.0);
+        hz.add(1.0, 2.0, false, 3.0);
+        hz.add(1.0, -0.6, true, 3.0);
         assert_eq!(hz.value(), before);
     }
 

@@ -6,6 +6,7 @@ pub mod horizon;
 pub mod paper;
 pub mod rng;
 
+pub use crate::falloff::Falloff;
 use crate::gbuffer::GBuffer;
 use crate::projection::Projection;
 use serde::Serialize;
@@ -29,8 +30,13 @@ pub struct SsaoParams {
     pub estimator: Estimator,
     /// Sampling-sphere radius `r_s` (metres).
     pub radius: f32,
-    /// Falloff distance `t_max` of ρ (metres).
+    /// Falloff distance `t_max` of ρ (metres; `f32::INFINITY` = plain ambient occlusion).
+    #[serde(serialize_with = "crate::falloff::serialize_tmax")]
     pub tmax: f32,
+    /// Shape of ρ below `t_max` (left out of the JSON when it is the default, so products
+    /// and reports of the default keep their parameters).
+    #[serde(skip_serializing_if = "Falloff::is_default")]
+    pub falloff: Falloff,
     /// Samples per pixel `|S|` (paper estimator).
     pub samples: u32,
     /// Azimuthal directions per pixel (horizon estimator).
@@ -52,15 +58,11 @@ pub struct AoMap {
     pub no_sample: Vec<bool>,
 }
 
-/// `ρ(d) = smoothstep(0, t_max, d)`: `x = clamp(d/t_max, 0, 1)`, `x²(3 − 2x)`. A zero or
-/// negative `t_max` means every occluder is at full strength beyond distance 0.
+/// The default falloff `ρ(d) = smoothstep(0, t_max, d)`: `x = clamp(d/t_max, 0, 1)`,
+/// `x²(3 − 2x)`; 1 from `t_max` on (a non-positive `t_max` lets everything through).
 #[inline]
 pub fn rho(d: f32, tmax: f32) -> f32 {
-    if !(tmax > 0.0) {
-        return if d > 0.0 { 1.0 } else { 0.0 };
-    }
-    let x = (d / tmax).clamp(0.0, 1.0);
-    x * x * (3.0 - 2.0 * x)
+    Falloff::Smoothstep.rho(d, tmax)
 }
 
 /// Eq. 5: `w = 1 − max(n·(p_i − p)/‖p_i − p‖, 0)` for a sample at offset `v = p_i − p` of

@@ -7,7 +7,7 @@
 //! skipped (not counted); a pixel with no valid sample keeps `a = 1` and is flagged.
 
 use super::rng::Rng;
-use super::{rho, visibility_weight, AoMap, SsaoParams};
+use super::{visibility_weight, AoMap, SsaoParams};
 use crate::gbuffer::GBuffer;
 use crate::projection::{angular_radius, Model, Projection};
 use rayon::prelude::*;
@@ -87,7 +87,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                     if !(len > 0.0) {
                         continue;
                     }
-                    sum += rho(len, prm.tmax) * visibility_weight(nrm, v, len);
+                    sum += prm.falloff.rho(len, prm.tmax) * visibility_weight(nrm, v, len);
                     cnt += 1;
                 }
                 if cnt > 0 {
@@ -157,6 +157,7 @@ mod tests {
             estimator: Estimator::Paper,
             radius,
             tmax,
+            falloff: Default::default(),
             samples,
             directions: 8,
             steps: 8,

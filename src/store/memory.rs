@@ -107,6 +107,7 @@ mod tests {
             estimator: crate::ssao::Estimator::Horizon,
             radius: 0.2,
             tmax: 0.4,
+            falloff: Default::default(),
             samples: 8,
             directions: 4,
             steps: 4,

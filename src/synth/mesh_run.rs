@@ -148,10 +148,13 @@ pub fn run_mesh(opts: &SynthOptions, src: &MeshSource) -> Result<SynthSummary> {
         ));
         let path = opts.out_dir.join(&file);
         write_scan_ply(&scan, &path, &comments)?;
-        if let Some((rays, tmax)) = opts.reference {
+        if let Some(rp) = opts.reference {
             let dir = opts.out_dir.join("reference-mesh");
             std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-            let a = mesh_obscurance(&scene, &truth, rays, tmax, 0);
+            if i == 0 {
+                super::write_truth_params(&dir, &rp, "mesh")?;
+            }
+            let a = mesh_obscurance(&scene, &truth, rp.rays, (rp.tmax, rp.falloff), 0);
             let (ts, normals) = truth_scan(&scan, &truth, true_pose);
             super::write_truth(&dir, &name, &ts, &normals, &a)?;
         }

@@ -107,8 +107,8 @@ pub struct SynthOptions {
     pub out_dir: PathBuf,
     /// Also write the exact reference obscurance of every point into
     /// `out_dir/reference-analytic/` (analytic scenes) or `out_dir/reference-mesh/` (mesh
-    /// scenes): (rays per point, t_max).
-    pub reference: Option<(u32, f32)>,
+    /// scenes) with these rays per point, t_max and falloff (the seed is 0).
+    pub reference: Option<crate::reference::RefParams>,
     /// Scan a triangle mesh instead of `scene` (see [`run`]).
     pub mesh: Option<MeshSource>,
     /// Mesh scenes: station positions (world), used in turn; empty = the scene's own.
@@ -335,6 +335,20 @@ pub fn station_poses(opts: &SynthOptions) -> Vec<DMat4> {
 
 /// Writes the exact obscurance `a` of a scan's points as a reference file in `dir` (no
 /// radii: the truth comes from the scene, not from surfels).
+/// `reference.json` of an exact reference directory: what `merge --reference` and `eval`
+/// compare a run's t_max and falloff with.
+fn write_truth_params(dir: &Path, rp: &crate::reference::RefParams, geometry: &str) -> Result<()> {
+    let json = serde_json::json!({
+        "version": env!("CARGO_PKG_VERSION"),
+        "params": rp,
+        "geometry": geometry,
+    });
+    crate::io::atomic::write_atomic(&dir.join("reference.json"), |w| {
+        serde_json::to_writer_pretty(&mut *w, &json).map_err(std::io::Error::other)?;
+        std::io::Write::write_all(w, b"\n")
+    })
+}
+
 fn write_truth(dir: &Path, name: &str, scan: &Scan, normals: &[Vec3], a: &[f32]) -> Result<()> {
     crate::io::reference::write_reference_ply(
         &crate::io::reference::reference_path(dir, name),
@@ -386,10 +400,14 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
             station: i,
             points: scan.len(),
         });
-        if let Some((rays, tmax)) = opts.reference {
+        if let Some(rp) = opts.reference {
             let dir = opts.out_dir.join("reference-analytic");
             std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-            let a = reference::analytic_obscurance(&scene, &scan, rays, tmax, 0);
+            if i == 0 {
+                write_truth_params(&dir, &rp, "analytic scene")?;
+            }
+            let a =
+                reference::analytic_obscurance(&scene, &scan, rp.rays, (rp.tmax, rp.falloff), 0);
             let normals = scan.normals.clone().unwrap_or_default();
             write_truth(&dir, &name, &scan, &normals, &a)?;
         }
@@ -553,7 +571,10 @@ mod tests {
             height: 32,
             noise: 0.0,
             out_dir: dir.path().join("m"),
-            reference: Some((32, f32::INFINITY)),
+            reference: Some(crate::reference::RefParams {
+                rays: 32,
+                ..Default::default()
+            }),
             registration: Registration {
                 translation: 0.01,
                 angle_deg: 0.5,
@@ -601,7 +622,11 @@ mod tests {
             noise: 0.001,
             seed: 9,
             out_dir: dir.path().join("synth"),
-            reference: Some((16, 0.5)),
+            reference: Some(crate::reference::RefParams {
+                rays: 16,
+                tmax: 0.5,
+                ..Default::default()
+            }),
             ..SynthOptions::default()
         };
         let sum = run(&opts).unwrap();

@@ -5,7 +5,7 @@
 use super::mesh::MeshScene;
 use super::scanner::Truth;
 use super::scene::Scene;
-use crate::reference::rho;
+use crate::falloff::Falloff;
 use crate::reference::sampling::{Azimuths, Pattern};
 use crate::scan::Scan;
 use glam::{DMat3, DVec3, Vec3};
@@ -16,13 +16,13 @@ use rayon::prelude::*;
 pub const LIFT: f64 = 1e-5;
 
 /// `A(p)` of every point of `scan` (exact normals required; points without one read 1),
-/// `rays` cosine-weighted rays per point, falloff `tmax` (∞ allowed), deterministic for
+/// `rays` cosine-weighted rays per point, falloff `falloff` to `tmax` (∞ allowed), deterministic for
 /// `seed` and independent of the thread count.
 pub fn analytic_obscurance(
     scene: &Scene,
     scan: &Scan,
     rays: u32,
-    tmax: f32,
+    (tmax, falloff): (f32, Falloff),
     seed: u64,
 ) -> Vec<f32> {
     let Some(normals) = scan.normals.as_ref() else {
@@ -51,7 +51,7 @@ pub fn analytic_obscurance(
                 let d: Vec3 = pat.dir(j);
                 let d = d.as_dvec3().normalize_or_zero();
                 let v = match scene.intersect_range(o, d, 0.0, reach) {
-                    Some(h) => rho(h.t as f32, tmax),
+                    Some(h) => falloff.rho(h.t as f32, tmax),
                     None => 1.0,
                 };
                 sum += v as f64;
@@ -63,7 +63,7 @@ pub fn analytic_obscurance(
 
 /// `A(p)` of every scanned point against the exact mesh: at the point's noise-free position
 /// on the mesh with the true face normal ([`Truth`]), `rays` cosine-weighted rays per point
-/// (the same direction sets as `mvao reference` for a seed), falloff `tmax` (∞ allowed). The
+/// (the same direction sets as `mvao reference` for a seed), `falloff` to `tmax` (∞ allowed). The
 /// ray leaves from the surface itself (lifted by 10⁻⁹ of the mesh's extent, f64) and never
 /// hits the face it starts on; every other face counts. Deterministic and independent of the
 /// thread count.
@@ -71,7 +71,7 @@ pub fn mesh_obscurance(
     scene: &MeshScene,
     truth: &[Truth],
     rays: u32,
-    tmax: f32,
+    (tmax, falloff): (f32, Falloff),
     seed: u64,
 ) -> Vec<f32> {
     let rays = rays.max(1);
@@ -95,7 +95,7 @@ pub fn mesh_obscurance(
             for j in 0..rays {
                 let d = pat.dir(j).as_dvec3().normalize_or_zero();
                 let v = match scene.intersect_skip(o, d, 0.0, reach, t.prim) {
-                    Some(h) => rho(h.t as f32, tmax),
+                    Some(h) => falloff.rho(h.t as f32, tmax),
                     None => 1.0,
                 };
                 sum += v as f64;
