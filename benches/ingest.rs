@@ -7,8 +7,8 @@
 //! compressions, in seconds and MB/s of the product files.
 
 use glam::DVec3;
+use mvao::io::ply::scan;
 use mvao::io::ply::PlyFile;
-use mvao::io::scan_ply;
 use mvao::products::{
     load_maps_for_merge, load_view, save_view_with, InputRecord, Manifest, MapCompression,
     SaveOptions,
@@ -59,9 +59,9 @@ fn main() {
         t,
         mb(size) / t
     );
-    let (t, (s, _)) = best_of(3, || scan_ply::read_scan(&ply).expect("read scan"));
+    let (t, (s, _)) = best_of(3, || scan::read_scan(&ply).expect("read scan"));
     println!(
-        "scan_ply::read_scan     {:7.3} s  {:7.0} MB/s",
+        "scan::read_scan         {:7.3} s  {:7.0} MB/s",
         t,
         mb(size) / t
     );
@@ -73,7 +73,7 @@ fn main() {
             .map_scalars("vertex", ["nx", "ny", "nz"], |v| v.map(|c| c as f32))
             .expect("normals")
     });
-    let (t_build, _) = best_of(3, || scan_ply::scan_from_ply(&parsed, &ply).expect("scan"));
+    let (t_build, _) = best_of(3, || scan::scan_from_ply(&parsed, &ply).expect("scan"));
     println!(
         "  of which scan_from_ply {:7.3} s: vertex_xyz {:.3} s, normals in one pass {:.3} s \
          (row/col likewise)",

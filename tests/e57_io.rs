@@ -4,7 +4,7 @@
 
 use e57::RecordName;
 use glam::{DMat4, DQuat, DVec3};
-use mvao::io::e57_file::*;
+use mvao::io::e57::*;
 use mvao::io::output::{grey, ColorMode};
 use mvao::io::raw::{PointTable, RawGrid};
 use mvao::Error;

@@ -6,7 +6,7 @@ mod common;
 
 use common::*;
 use glam::{DMat4, DQuat, DVec3};
-use mvao::io::e57_file::{read_e57, write_e57_scans, E57ScanOut};
+use mvao::io::e57::{read_e57, write_e57_scans, E57ScanOut};
 use mvao::io::raw::{PointTable, RawGrid};
 use mvao::io::source::{read_input, Format};
 use mvao::synth::{scan_scene, Scene, Station};
@@ -273,7 +273,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
         grid: None,
         extra: Vec::new(),
     };
-    mvao::io::las_file::write_table_las(&table, &las, false).unwrap();
+    mvao::io::las::write_table_las(&table, &las, false).unwrap();
     // Without a scanner position: a clear warning naming what is missing.
     let o0 = d.path().join("o0");
     let err = mvao_ok(&[
@@ -310,7 +310,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
         las.to_str().unwrap(),
     ]);
     let out = o.join("tls.mvao.las");
-    let ao = mvao::io::las_file::read_ao(&out).unwrap();
+    let ao = mvao::io::las::read_ao(&out).unwrap();
     assert_eq!(ao.len(), s.len());
     assert!(ao.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a)));
     // Every original dimension kept (raw integers, intensity, classification).

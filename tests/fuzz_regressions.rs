@@ -19,7 +19,7 @@ use fuzz_checks::{
     ply_from_structure,
 };
 use mvao::io::align::{read_alignment, read_matrix_file, split_scale};
-use mvao::io::las_file::read_las;
+use mvao::io::las::read_las;
 use mvao::io::ply::PlyFile;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};

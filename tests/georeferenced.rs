@@ -44,7 +44,7 @@ fn double_coordinates_far_from_the_origin_are_recentred() {
     assert!(r.status.success(), "{err}");
     assert!(err.contains("re-centred"), "{err}");
 
-    let (scan, _) = mvao::io::scan_ply::read_scan(&input).unwrap();
+    let (scan, _) = mvao::io::ply::scan::read_scan(&input).unwrap();
     let o = scan.pose.w_axis.truncate();
     assert!((o - off).length() < 10.0, "offset {o}");
     // Local f32 data is small again: sub-millimetre exact.

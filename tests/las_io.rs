@@ -4,7 +4,7 @@
 use glam::{DMat4, DVec3};
 use las::point::Format;
 use las::{Builder, PointDataBuilder, Reader, Transform, Vector, Vlr, Writer};
-use mvao::io::las_file::{read_ao, read_las, write_las, write_table_las};
+use mvao::io::las::{read_ao, read_las, write_las, write_table_las};
 use mvao::io::output::{grey, ColorMode};
 use mvao::io::raw::PointTable;
 use mvao::Error;

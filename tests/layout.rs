@@ -17,18 +17,18 @@ const FN_LINES: usize = 150;
 
 /// Files over [`FILE_LINES`] that are waiting to be split.
 const LARGE_FILES: &[&str] = &[
-    "io/e57_file.rs",
-    "io/las_file.rs",
-    "io/ply.rs",
+    "io/e57/mod.rs",
+    "io/las/mod.rs",
+    "io/ply/mod.rs",
     "ssao/horizon.rs",
 ];
 
 /// Functions over [`FN_LINES`] (file, name) that are waiting to be split.
 const LARGE_FNS: &[(&str, &str)] = &[
-    ("io/e57_file.rs", "read_cloud"),
-    ("io/las_file.rs", "read_las"),
-    ("io/las_file.rs", "write_las"),
-    ("io/las_file.rs", "write_table_las"),
+    ("io/e57/mod.rs", "read_cloud"),
+    ("io/las/mod.rs", "read_las"),
+    ("io/las/mod.rs", "write_las"),
+    ("io/las/mod.rs", "write_table_las"),
     ("io/ptx.rs", "parse_block"),
     ("plot.rs", "render_svg"),
 ];

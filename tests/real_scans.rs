@@ -126,7 +126,7 @@ fn bunny_merge_outputs_every_scan() {
 #[test]
 fn bunny_scans_are_orthographic_looking_along_minus_z() {
     for p in plys("stanford-bunny") {
-        let (scan, _) = mvao::io::scan_ply::read_scan(&p).unwrap();
+        let (scan, _) = mvao::io::ply::scan::read_scan(&p).unwrap();
         let setup = mvao::sensor::setup(&scan, mvao::sensor::ProjectionChoice::Auto).unwrap();
         match setup.projection.model {
             mvao::projection::Model::Ortho { toward, .. } => {

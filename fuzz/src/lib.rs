@@ -10,8 +10,8 @@
 
 use glam::{DMat3, DMat4, DVec4};
 use mvao::io::align::{check_rigid, match_scans, poses_for_scans, read_alignment};
+use mvao::io::ply::scan::scan_from_ply;
 use mvao::io::ply::{ElementData, ElementDef, Encoding, PlyFile, PropertyKind, ScalarType};
-use mvao::io::scan_ply::scan_from_ply;
 use mvao::Error;
 use std::path::{Path, PathBuf};
 

@@ -11,8 +11,8 @@
 use super::{assert_rigid, Scratch};
 use glam::{DMat3, DVec4};
 use mvao::io::align::{read_matrix_file, split_scale};
-use mvao::io::e57_file::read_e57;
-use mvao::io::las_file::read_las;
+use mvao::io::e57::read_e57;
+use mvao::io::las::read_las;
 use mvao::io::output::ColorMode;
 use mvao::io::ptx::{read_ptx, write_ptx};
 use mvao::io::source::{read_input, InputFile};

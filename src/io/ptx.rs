@@ -17,7 +17,7 @@
 //! parses them in parallel with an exact fast path for plain decimals.
 
 use super::atomic::write_atomic;
-use super::e57_file::result_colours;
+use super::e57::result_colours;
 use super::output::ColorMode;
 use super::raw::{PointTable, RawGrid, RawScan};
 use crate::error::{Error, Result};

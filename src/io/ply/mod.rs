@@ -3,6 +3,9 @@
 //! binary rows whatever the input encoding, so writing binary little endian is a copy and
 //! reading a fixed-stride vertex block is one bulk read.
 
+mod retain;
+pub mod scan;
+
 use crate::error::{Error, Result};
 use rayon::prelude::*;
 use std::fs::File;

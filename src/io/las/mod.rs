@@ -16,13 +16,15 @@
 //! LASzip VLR of a compressed input (a new one describes the output). External waveform data
 //! (`.wdp`) is referenced, not copied.
 
-use super::atomic::write_atomic_file;
-use super::output::{grey, ColorMode};
-use super::raw::{PointTable, RawScan};
+use crate::io::atomic::write_atomic_file;
+use crate::io::output::{grey, ColorMode};
+use crate::io::raw::{PointTable, RawScan};
+mod laz_check;
+
 use crate::error::{Error, Result};
+use ::las::point::Format;
+use ::las::{Builder, Header, PointDataBuilder, Transform, Vector, Version, Vlr, Writer};
 use glam::Vec3;
-use las::point::Format;
-use las::{Builder, Header, PointDataBuilder, Transform, Vector, Version, Vlr, Writer};
 use rayon::prelude::*;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
@@ -352,12 +354,12 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut rd = BufReader::new(file);
-    let raw = las::raw::Header::read_from(&mut rd).map_err(|e| match e {
-        las::Error::InvalidFileSignature(s) => bad(format!(
+    let raw = ::las::raw::Header::read_from(&mut rd).map_err(|e| match e {
+        ::las::Error::InvalidFileSignature(s) => bad(format!(
             "not a LAS file (signature {:?} instead of \"LASF\")",
             String::from_utf8_lossy(&s)
         )),
-        las::Error::Io(ref io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+        ::las::Error::Io(ref io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
             bad(format!("truncated LAS header (file is {file_len} bytes)"))
         }
         other => bad(format!("unreadable LAS header: {other}")),
@@ -544,7 +546,7 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
     }
     let records = if compressed {
         if let Some(v) = laszip.map(|i| &vlrs[i]) {
-            super::laz_check::check_layers(path, file_len, offset_to_points, count, &v.data)?;
+            laz_check::check_layers(path, file_len, offset_to_points, count, &v.data)?;
         }
         read_laz_points(path, file_len, offset_to_points, count, record_len)?
     } else {
@@ -740,7 +742,7 @@ fn read_laz_points(
     check_chunk_table(path, file_len, offset)?;
     let decode = || -> Result<Vec<u8>> {
         let file = File::open(path).map_err(|e| Error::io(path, e))?;
-        let mut reader = las::Reader::new(BufReader::new(file))
+        let mut reader = ::las::Reader::new(BufReader::new(file))
             .map_err(|e| Error::format(path, format!("unreadable LAZ: {e}")))?;
         let mut batch = PointDataBuilder::new().for_header(reader.header()).build();
         // Grow with what was really decoded: the header's count is not trusted for memory.
@@ -941,9 +943,9 @@ pub fn write_las(
             .records
             .par_chunks_exact(input.record_len.max(1))
             .any(|r| r.len() > 14 && r[14] & 7 > 5);
-    let large = v.supports::<las::feature::LargeFiles>();
+    let large = v.supports::<::las::feature::LargeFiles>();
     let fits = v.supports_point_format(format)
-        && (builder.evlrs.is_empty() || v.supports::<las::feature::Evlrs>())
+        && (builder.evlrs.is_empty() || v.supports::<::las::feature::Evlrs>())
         && (input.len() as u64 <= u32::MAX as u64 || large)
         && (!high_returns || large);
     let header = if fits {
@@ -1168,8 +1170,8 @@ fn write_points<F>(
 where
     F: Fn(&mut [u8], usize),
 {
-    let werr = |e: las::Error| match e {
-        las::Error::Io(io) => Error::io(out, io),
+    let werr = |e: ::las::Error| match e {
+        ::las::Error::Io(io) => Error::io(out, io),
         other => write_error(out, format!("cannot write LAS: {other}")),
     };
     let evlr_lens: Vec<u64> = header
@@ -1203,7 +1205,7 @@ where
             writer.close()
         }));
         let written = written.unwrap_or_else(|_| {
-            Err(las::Error::Io(std::io::Error::other(
+            Err(::las::Error::Io(std::io::Error::other(
                 "the LAS/LAZ encoder failed on these points",
             )))
         });

@@ -26,12 +26,12 @@
 //! GUIDs (derived from the old ones, so reruns give identical files) and list the input scan's
 //! GUID in `originalGuids`.
 
-use super::align::check_rigid;
-use super::atomic::write_atomic_seekable;
-use super::output::{grey, ColorMode};
-use super::raw::{PointTable, RawGrid, RawScan};
 use crate::error::{Error, Result};
-use e57::{
+use crate::io::align::check_rigid;
+use crate::io::atomic::write_atomic_seekable;
+use crate::io::output::{grey, ColorMode};
+use crate::io::raw::{PointTable, RawGrid, RawScan};
+use ::e57::{
     ColorLimits, E57Reader, E57Writer, Extension, IndexBounds, IntensityLimits, PointCloud,
     Quaternion, Record, RecordDataType, RecordName, RecordValue, Transform, Translation,
 };
@@ -1187,7 +1187,7 @@ fn write_clouds(
     extensions: &[Extension],
     clouds: &[CloudOut],
 ) -> Result<()> {
-    let other = |name: &str, e: e57::Error| std::io::Error::other(format!("scan {name}: {e}"));
+    let other = |name: &str, e: ::e57::Error| std::io::Error::other(format!("scan {name}: {e}"));
     write_atomic_seekable(out, |file| {
         let mut w = E57Writer::new(file, file_guid).map_err(std::io::Error::other)?;
         for e in extensions {
