@@ -1,4 +1,4 @@
-
+use super::read::PARALLEL_READ_MIN;
 use super::*;
 use std::path::PathBuf;
 

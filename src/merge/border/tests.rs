@@ -1,4 +1,3 @@
-
 use super::*;
 
 /// SplitMix64: small deterministic PRNG for the tests.
