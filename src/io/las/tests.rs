@@ -1,3 +1,6 @@
+use super::read::*;
+use super::table::*;
+use super::write::*;
 use super::*;
 
 #[test]
