@@ -1,3 +1,5 @@
+use super::read::*;
+use super::write::*;
 use super::*;
 
 #[test]
