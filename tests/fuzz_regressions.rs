@@ -19,7 +19,7 @@ use fuzz_checks::{
     ply_from_structure,
 };
 use mvao::io::align::{read_alignment, read_matrix_file, split_scale};
-use mvao::io::las::read_las;
+use mvao::io::las::LasInput;
 use mvao::io::ply::PlyFile;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -240,7 +240,7 @@ fn las_parse_evlr_start_beyond_the_file() {
         b[243..247].copy_from_slice(&count.to_le_bytes());
         check_las(&[&[0u8][..], &b].concat());
         std::fs::write(&p, &b).unwrap();
-        match read_las(&p) {
+        match LasInput::from_path(&p) {
             Ok(l) => assert!(ok && l.len() == 5, "{start} {count}"),
             Err(e) => {
                 assert!(!ok, "{e}");
@@ -281,7 +281,7 @@ fn las_parse_laz_layer_sizes_are_bounded() {
     ] {
         within(Duration::from_secs(5), name, || check_las(bytes));
         std::fs::write(&p, &bytes[1..]).unwrap();
-        let e = read_las(&p).expect_err(name);
+        let e = LasInput::from_path(&p).expect_err(name);
         assert!(matches!(e, mvao::Error::Format { .. }), "{e:?}");
         assert!(e.to_string().contains("chunk table"), "{e}");
         assert!(e.to_string().contains("s.laz"), "{e}");
@@ -299,7 +299,7 @@ fn las_parse_laz_layer_sizes_are_bounded() {
         "the seed should be layered, point format {format}"
     );
     std::fs::write(&p, file).unwrap();
-    let n = read_las(&p).expect("the seed reads").len();
+    let n = LasInput::from_path(&p).expect("the seed reads").len();
     assert!(n > 0);
     let offset = u32::from_le_bytes(file[96..100].try_into().unwrap()) as usize;
     let record_len = u16::from_le_bytes(file[105..107].try_into().unwrap()) as usize;
@@ -308,7 +308,7 @@ fn las_parse_laz_layer_sizes_are_bounded() {
     b[layer0..layer0 + 4].copy_from_slice(&0xF000_0000u32.to_le_bytes());
     check_las(&[&[1u8][..], &b].concat());
     std::fs::write(&p, &b).unwrap();
-    let e = read_las(&p).expect_err("corrupt layer size");
+    let e = LasInput::from_path(&p).expect_err("corrupt layer size");
     assert!(e.to_string().contains("its layers claim"), "{e}");
     if let (Some(a), Some(b)) = (before, peak_rss()) {
         assert!(

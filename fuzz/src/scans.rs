@@ -12,7 +12,7 @@ use super::{assert_rigid, Scratch};
 use glam::{DMat3, DVec4};
 use mvao::io::align::{read_matrix_file, split_scale};
 use mvao::io::e57::read_e57;
-use mvao::io::las::read_las;
+use mvao::io::las::LasInput;
 use mvao::io::output::ColorMode;
 use mvao::io::ptx::{read_ptx, write_ptx};
 use mvao::io::source::{read_input, InputFile};
@@ -155,7 +155,7 @@ pub fn check_las(data: &[u8]) {
     let path = scratch.file(&format!("input.{ext}"));
     std::fs::write(&path, bytes).expect("write scratch input");
     read_checked(&path);
-    let las = match read_las(&path) {
+    let las = match LasInput::from_path(&path) {
         Ok(l) => l,
         Err(e) => {
             assert_names_file(&e, &path);

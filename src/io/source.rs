@@ -202,7 +202,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
             })
         }
         Format::Las | Format::Laz => {
-            let l = super::las::read_las(path)?;
+            let l = super::las::LasInput::from_path(path)?;
             let (scan, off) = scan_from_raw(l.raw_scan(&stem), path)?;
             Ok(InputFile {
                 path: path.to_path_buf(),

@@ -13,7 +13,8 @@ use crate::error::{Error, Result};
 /// `laszip_vlr` is the payload of the LASzip VLR; `offset` is the offset to point data and
 /// `count` the header's point count.
 #[cfg(feature = "laz")]
-pub(crate) fn check_layers(
+pub(crate) fn check_layers<R: std::io::Read + std::io::Seek>(
+    f: &mut R,
     path: &Path,
     file_len: u64,
     offset: u64,
@@ -21,8 +22,7 @@ pub(crate) fn check_layers(
     laszip_vlr: &[u8],
 ) -> Result<()> {
     use laz::laszip::{ChunkTable, LazItemType, LazVlr};
-    use std::fs::File;
-    use std::io::{BufReader, Read, Seek, SeekFrom};
+    use std::io::SeekFrom;
 
     let bad = |m: String| Error::format(path, m);
     let vlr = LazVlr::from_buffer(laszip_vlr).map_err(|e| bad(format!("bad LASzip VLR: {e}")))?;
@@ -49,10 +49,9 @@ pub(crate) fn check_layers(
     // The smallest chunk: the first point raw, the point count and the layer sizes.
     let min_chunk = first_point + 4 + 4 * n_layers;
 
-    let mut f = BufReader::new(File::open(path).map_err(|e| Error::io(path, e))?);
     f.seek(SeekFrom::Start(offset))
         .map_err(|e| Error::io(path, e))?;
-    let table_at = read_table_offset(&mut f, offset, file_len)
+    let table_at = read_table_offset(f, offset, file_len)
         .ok_or_else(|| bad("layered LAZ without a readable chunk table".into()))?;
     // The chunk count is plain bytes before the coded entries; bound it before the table
     // reader reserves memory for it.
@@ -70,7 +69,7 @@ pub(crate) fn check_layers(
     }
     f.seek(SeekFrom::Start(offset))
         .map_err(|e| Error::io(path, e))?;
-    let table = ChunkTable::read_from(&mut f, &vlr)
+    let table = ChunkTable::read_from(&mut *f, &vlr)
         .map_err(|e| bad(format!("corrupt LAZ chunk table: {e}")))?;
 
     // The decoder reads chunk after chunk whatever the table says: a chunk the table does not
@@ -132,6 +131,6 @@ fn read_table_offset<R: std::io::Read + std::io::Seek>(
 
 /// Without LAZ support compressed files are refused before any check is needed.
 #[cfg(not(feature = "laz"))]
-pub(crate) fn check_layers(_: &Path, _: u64, _: u64, _: u64, _: &[u8]) -> Result<()> {
+pub(crate) fn check_layers<R>(_: &mut R, _: &Path, _: u64, _: u64, _: u64, _: &[u8]) -> Result<()> {
     Ok(())
 }

@@ -24,7 +24,7 @@ mod read;
 mod table;
 mod write;
 
-pub use read::{read_ao, read_las};
+pub use read::read_ao;
 pub use table::{grid_exponent, write_table_las};
 use write::rgb_offset;
 pub use write::write_las;

@@ -3,16 +3,130 @@
 
 use super::*;
 
-/// Reads a LAS (1.0–1.4) or LAZ file, keeping every point record exactly.
-///
-/// A file that is not LAS, is truncated, or whose header, VLRs, EVLRs or extra-bytes
-/// description contradict its size gives [`Error::Format`] naming the file.
-pub fn read_las(path: &Path) -> Result<LasInput> {
+/// The name errors give to LAS read from a stream rather than a file.
+const STREAM: &str = "(LAS stream)";
+
+impl LasInput {
+    /// Reads a LAS (1.0–1.4) or LAZ file, keeping every point record exactly.
+    ///
+    /// A file that is not LAS, is truncated, or whose header, VLRs, EVLRs or extra-bytes
+    /// description contradict its size gives [`Error::Format`] naming the file.
+    pub fn from_path(path: &Path) -> Result<LasInput> {
+        let file = File::open(path).map_err(|e| Error::io(path, e))?;
+        let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+        read_from(BufReader::new(file), file_len, path)
+    }
+
+    /// Reads LAS or LAZ from memory or any seekable stream, as [`LasInput::from_path`] reads a
+    /// file; errors name the input `(LAS stream)`. The LAZ decoder takes the stream over, hence
+    /// the `Send + Sync + 'static` bound.
+    pub fn new<R: Read + Seek + Send + Sync + 'static>(mut reader: R) -> Result<LasInput> {
+        let path = Path::new(STREAM);
+        let file_len = reader
+            .seek(SeekFrom::End(0))
+            .map_err(|e| Error::io(path, e))?;
+        seek(&mut reader, 0, path)?;
+        read_from(reader, file_len, path)
+    }
+}
+
+/// What the fixed header says, checked against itself and the file's length.
+struct Head {
+    raw: ::las::raw::Header,
+    format: Format,
+    format_id: u8,
+    compressed: bool,
+    std_len: usize,
+    record_len: usize,
+    header_size: u64,
+    offset_to_points: u64,
+    count: u64,
+}
+
+/// [`LasInput::from_path`] over `rd`, a stream of `file_len` bytes positioned at its start.
+fn read_from<R: Read + Seek + Send + Sync + 'static>(
+    mut rd: R,
+    file_len: u64,
+    path: &Path,
+) -> Result<LasInput> {
     let bad = |msg: String| Error::format(path, msg);
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
-    let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-    let mut rd = BufReader::new(file);
-    let raw = ::las::raw::Header::read_from(&mut rd).map_err(|e| match e {
+    let head = read_head(&mut rd, file_len, path)?;
+    let (offset_to_points, count, record_len) =
+        (head.offset_to_points, head.count, head.record_len);
+    let (mut vlrs, vlr_padding) = read_vlrs(&mut rd, &head, path)?;
+
+    let data_len = count.checked_mul(record_len as u64);
+    if !head.compressed {
+        let fits = data_len.is_some_and(|l| l <= file_len - offset_to_points);
+        if !fits {
+            return Err(bad(format!(
+                "header says {count} points of {record_len} bytes but the file holds {} after \
+                 byte {offset_to_points}",
+                (file_len - offset_to_points) / record_len as u64
+            )));
+        }
+    }
+    let (mut evlrs, waveform_evlr) = read_evlrs(&mut rd, &head, data_len, file_len, path)?;
+
+    let extra_len = record_len - head.std_len;
+    let eb_vlr = vlrs.iter().chain(&evlrs).find(|v| is_extra_bytes_vlr(v));
+    let extra = match eb_vlr {
+        Some(v) => parse_extra_dims(&v.data, head.std_len, extra_len)
+            .map_err(|m| bad(format!("extra-bytes VLR: {m}")))?,
+        None => Vec::new(),
+    };
+
+    let laszip = vlrs.iter().find(|v| is_laszip_vlr(v));
+    let records = match (head.compressed, laszip) {
+        (true, None) => {
+            return Err(bad(
+                "compressed point format but no LASzip VLR describes it".into(),
+            ))
+        }
+        (true, Some(v)) => {
+            laz_check::check_layers(&mut rd, path, file_len, offset_to_points, count, &v.data)?;
+            read_laz_points(rd, path, file_len, offset_to_points, count, record_len)?
+        }
+        (false, _) => read_las_points(&mut rd, path, offset_to_points, count, record_len)?,
+    };
+
+    let Head {
+        raw,
+        mut format,
+        format_id,
+        compressed,
+        ..
+    } = head;
+    let global_encoding = raw.global_encoding;
+    let mut builder = Builder::new(raw).map_err(|e| bad(format!("unusable LAS header: {e}")))?;
+    vlrs.retain(|v| !is_laszip_vlr(v) && !is_copc(v));
+    let waveform_vlr = waveform_evlr.and_then(|i| evlrs.get(i).cloned());
+    evlrs.retain(|v| !is_copc(v));
+    let waveform_evlr = waveform_vlr.and_then(|w| evlrs.iter().position(|v| *v == w));
+    builder.vlrs = vlrs;
+    builder.evlrs = evlrs;
+    builder.vlr_padding = vlr_padding;
+    builder.point_padding = Vec::new();
+    format.is_compressed = false;
+    builder.point_format = format;
+    Ok(LasInput {
+        path: path.to_path_buf(),
+        builder,
+        global_encoding,
+        waveform_evlr,
+        format,
+        format_id,
+        compressed,
+        record_len,
+        records,
+        extra,
+    })
+}
+
+/// Reads and checks the fixed header: version, sizes, point format, scales and offsets.
+fn read_head(rd: &mut impl Read, file_len: u64, path: &Path) -> Result<Head> {
+    let bad = |msg: String| Error::format(path, msg);
+    let raw = ::las::raw::Header::read_from(rd).map_err(|e| match e {
         ::las::Error::InvalidFileSignature(s) => bad(format!(
             "not a LAS file (signature {:?} instead of \"LASF\")",
             String::from_utf8_lossy(&s)
@@ -45,22 +159,21 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
              (header {header_size} bytes, file {file_len} bytes)"
         )));
     }
-    let mut format = Format::new(raw.point_data_record_format).map_err(|_| {
+    let format = Format::new(raw.point_data_record_format).map_err(|_| {
         bad(format!(
             "unknown point format {}",
             raw.point_data_record_format
         ))
     })?;
     let format_id = raw.point_data_record_format & 0x3f;
-    if format_id as usize >= STD_LEN.len() {
+    let Some(&std_len) = STD_LEN.get(format_id as usize) else {
         return Err(bad(format!("unknown point format {format_id}")));
-    }
+    };
     let compressed = format.is_compressed;
     #[cfg(not(feature = "laz"))]
     if compressed {
         return Err(bad(NO_LAZ.into()));
     }
-    let std_len = STD_LEN[format_id as usize];
     let record_len = raw.point_data_record_length as usize;
     if record_len < std_len {
         return Err(bad(format!(
@@ -68,53 +181,59 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
              ({std_len})"
         )));
     }
-    let transforms = Vector {
-        x: Transform {
-            scale: raw.x_scale_factor,
-            offset: raw.x_offset,
-        },
-        y: Transform {
-            scale: raw.y_scale_factor,
-            offset: raw.y_offset,
-        },
-        z: Transform {
-            scale: raw.z_scale_factor,
-            offset: raw.z_offset,
-        },
-    };
-    for (axis, t) in [
-        ("x", transforms.x),
-        ("y", transforms.y),
-        ("z", transforms.z),
-    ] {
-        if !(t.scale.is_finite() && t.scale != 0.0 && t.offset.is_finite()) {
-            return Err(bad(format!(
-                "{axis} scale {} / offset {} is not usable",
-                t.scale, t.offset
-            )));
-        }
-    }
+    check_transforms(&raw, path)?;
     let legacy = raw.number_of_point_records as u64;
     let count = match raw.large_file {
         Some(l) if legacy == 0 => l.number_of_point_records,
         _ => legacy,
     };
-    let global_encoding = raw.global_encoding;
-    let waveform_start = raw.start_of_waveform_data_packet_record;
-    let evlr_info = raw.evlr;
-    let n_vlrs = raw.number_of_variable_length_records;
+    Ok(Head {
+        raw,
+        format,
+        format_id,
+        compressed,
+        std_len,
+        record_len,
+        header_size,
+        offset_to_points,
+        count,
+    })
+}
 
-    // VLRs lie between the header and the point data.
+/// Scales must be finite and non-zero, offsets finite.
+fn check_transforms(raw: &::las::raw::Header, path: &Path) -> Result<()> {
+    for (axis, scale, offset) in [
+        ("x", raw.x_scale_factor, raw.x_offset),
+        ("y", raw.y_scale_factor, raw.y_offset),
+        ("z", raw.z_scale_factor, raw.z_offset),
+    ] {
+        if !(scale.is_finite() && scale != 0.0 && offset.is_finite()) {
+            return Err(Error::format(
+                path,
+                format!("{axis} scale {scale} / offset {offset} is not usable"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The VLRs between the header and the point data, and the bytes after them.
+fn read_vlrs<R: Read + Seek>(rd: &mut R, head: &Head, path: &Path) -> Result<(Vec<Vlr>, Vec<u8>)> {
+    let offset_to_points = head.offset_to_points;
+    let n_vlrs = head.raw.number_of_variable_length_records;
     let mut vlrs = Vec::new();
-    let mut pos = header_size;
-    seek(&mut rd, pos, path)?;
+    let mut pos = head.header_size;
+    seek(rd, pos, path)?;
     for k in 0..n_vlrs {
-        let vlr = read_vlr(&mut rd, false, pos, offset_to_points).map_err(|m| {
-            bad(format!(
-                "VLR {} of {n_vlrs} (at byte {pos}) {m}; the point data starts at byte \
-                 {offset_to_points}",
-                k + 1
-            ))
+        let vlr = read_vlr(rd, false, pos, offset_to_points).map_err(|m| {
+            Error::format(
+                path,
+                format!(
+                    "VLR {} of {n_vlrs} (at byte {pos}) {m}; the point data starts at byte \
+                     {offset_to_points}",
+                    k + 1
+                ),
+            )
         })?;
         pos += VLR_HEADER_LEN + vlr.data.len() as u64;
         vlrs.push(vlr);
@@ -122,20 +241,21 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
     let mut vlr_padding = vec![0u8; (offset_to_points - pos) as usize];
     rd.read_exact(&mut vlr_padding)
         .map_err(|e| Error::io(path, e))?;
+    Ok((vlrs, vlr_padding))
+}
 
-    let data_len = count.checked_mul(record_len as u64);
-    if !compressed {
-        let fits = data_len.is_some_and(|l| l <= file_len - offset_to_points);
-        if !fits {
-            return Err(bad(format!(
-                "header says {count} points of {record_len} bytes but the file holds {} after \
-                 byte {offset_to_points}",
-                (file_len - offset_to_points) / record_len as u64
-            )));
-        }
-    }
-
-    // EVLRs (LAS 1.4), and the waveform packets of LAS 1.3, follow the point data.
+/// The EVLRs (LAS 1.4) and the waveform packets of LAS 1.3, which follow the point data, with
+/// the index among them of the waveform packets.
+fn read_evlrs<R: Read + Seek>(
+    rd: &mut R,
+    head: &Head,
+    data_len: Option<u64>,
+    file_len: u64,
+    path: &Path,
+) -> Result<(Vec<Vlr>, Option<usize>)> {
+    let bad = |msg: String| Error::format(path, msg);
+    let (count, offset_to_points) = (head.count, head.offset_to_points);
+    let evlr_info = head.raw.evlr;
     let mut evlrs = Vec::new();
     let mut evlr_pos = Vec::new();
     // Where the EVLRs start says nothing when there are none (writers leave 0 or junk).
@@ -149,15 +269,15 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
                 e.number_of_evlrs
             )));
         }
-        if !compressed && pos < points_end {
+        if !head.compressed && pos < points_end {
             return Err(bad(format!(
                 "header says {count} points, whose data would end at byte {points_end}, past \
                  the first EVLR at byte {pos}"
             )));
         }
-        seek(&mut rd, pos, path)?;
+        seek(rd, pos, path)?;
         for k in 0..e.number_of_evlrs {
-            let vlr = read_vlr(&mut rd, true, pos, file_len).map_err(|m| {
+            let vlr = read_vlr(rd, true, pos, file_len).map_err(|m| {
                 bad(format!(
                     "EVLR {} of {} (at byte {pos}) {m}; the file is {file_len} bytes",
                     k + 1,
@@ -170,7 +290,8 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
         }
     }
     let mut waveform_evlr = None;
-    if let (Some(start), true) = (waveform_start, global_encoding & 2 != 0) {
+    let waveform_start = head.raw.start_of_waveform_data_packet_record;
+    if let (Some(start), true) = (waveform_start, head.raw.global_encoding & 2 != 0) {
         waveform_evlr = evlr_pos.iter().position(|&p| p == start);
         if waveform_evlr.is_none() && evlr_info.is_none() {
             if start > file_len {
@@ -179,72 +300,25 @@ pub fn read_las(path: &Path) -> Result<LasInput> {
                      of the file ({file_len} bytes)"
                 )));
             }
-            seek(&mut rd, start, path)?;
-            let vlr = read_vlr(&mut rd, true, start, file_len)
+            seek(rd, start, path)?;
+            let vlr = read_vlr(rd, true, start, file_len)
                 .map_err(|m| bad(format!("waveform data packet record (at byte {start}) {m}")))?;
             waveform_evlr = Some(evlrs.len());
             evlrs.push(vlr);
         }
     }
-    drop(rd);
-
-    let extra_len = record_len - std_len;
-    let eb_vlr = vlrs.iter().chain(&evlrs).find(|v| is_extra_bytes_vlr(v));
-    let extra = match eb_vlr {
-        Some(v) => parse_extra_dims(&v.data, std_len, extra_len)
-            .map_err(|m| bad(format!("extra-bytes VLR: {m}")))?,
-        None => Vec::new(),
-    };
-
-    let laszip = vlrs.iter().position(is_laszip_vlr);
-    if compressed && laszip.is_none() {
-        return Err(bad(
-            "compressed point format but no LASzip VLR describes it".into(),
-        ));
-    }
-    let records = if compressed {
-        if let Some(v) = laszip.map(|i| &vlrs[i]) {
-            laz_check::check_layers(path, file_len, offset_to_points, count, &v.data)?;
-        }
-        read_laz_points(path, file_len, offset_to_points, count, record_len)?
-    } else {
-        read_las_points(path, offset_to_points, count, record_len)?
-    };
-
-    let mut builder = Builder::new(raw).map_err(|e| bad(format!("unusable LAS header: {e}")))?;
-    vlrs.retain(|v| !is_laszip_vlr(v) && !is_copc(v));
-    let waveform_vlr = waveform_evlr.map(|i| evlrs[i].clone());
-    evlrs.retain(|v| !is_copc(v));
-    let waveform_evlr = waveform_vlr.and_then(|w| evlrs.iter().position(|v| *v == w));
-    builder.vlrs = vlrs;
-    builder.evlrs = evlrs;
-    builder.vlr_padding = vlr_padding;
-    builder.point_padding = Vec::new();
-    format.is_compressed = false;
-    builder.point_format = format;
-    Ok(LasInput {
-        path: path.to_path_buf(),
-        builder,
-        global_encoding,
-        waveform_evlr,
-        format,
-        format_id,
-        compressed,
-        record_len,
-        records,
-        extra,
-    })
+    Ok((evlrs, waveform_evlr))
 }
 
 /// Reads the `ao` extra dimension of a LAS/LAZ file, located by its extra-bytes description.
 pub fn read_ao(path: &Path) -> Result<Vec<f32>> {
-    let input = read_las(path)?;
+    let input = LasInput::from_path(path)?;
     input
         .ao()
         .ok_or_else(|| Error::format(path, "no numeric 'ao' extra-bytes dimension"))
 }
 
-pub(super) fn seek(rd: &mut BufReader<File>, pos: u64, path: &Path) -> Result<()> {
+pub(super) fn seek<R: Seek>(rd: &mut R, pos: u64, path: &Path) -> Result<()> {
     rd.seek(SeekFrom::Start(pos))
         .map(|_| ())
         .map_err(|e| Error::io(path, e))
@@ -362,24 +436,25 @@ pub(super) fn parse_extra_dims(
     Ok(dims)
 }
 
-pub(super) fn read_las_points(
+/// The point records of an uncompressed file (the caller checked that `count · record_len`
+/// bytes follow `offset`).
+pub(super) fn read_las_points<R: Read + Seek>(
+    rd: &mut R,
     path: &Path,
     offset: u64,
     count: u64,
     record_len: usize,
 ) -> Result<Vec<u8>> {
-    // The caller checked that count · record_len bytes follow `offset`.
-    let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
-    file.seek(SeekFrom::Start(offset))
-        .map_err(|e| Error::io(path, e))?;
+    seek(rd, offset, path)?;
     let mut records = vec![0u8; count as usize * record_len];
-    file.read_exact(&mut records)
+    rd.read_exact(&mut records)
         .map_err(|e| Error::io(path, e))?;
     Ok(records)
 }
 
 #[cfg(not(feature = "laz"))]
-pub(super) fn read_laz_points(
+pub(super) fn read_laz_points<R>(
+    _rd: R,
     path: &Path,
     _file_len: u64,
     _offset: u64,
@@ -389,18 +464,20 @@ pub(super) fn read_laz_points(
     Err(Error::format(path, NO_LAZ))
 }
 
+/// The point records of a LAZ file, decoded.
 #[cfg(feature = "laz")]
-pub(super) fn read_laz_points(
+pub(super) fn read_laz_points<R: Read + Seek + Send + Sync + 'static>(
+    mut rd: R,
     path: &Path,
     file_len: u64,
     offset: u64,
     count: u64,
     record_len: usize,
 ) -> Result<Vec<u8>> {
-    check_chunk_table(path, file_len, offset)?;
-    let decode = || -> Result<Vec<u8>> {
-        let file = File::open(path).map_err(|e| Error::io(path, e))?;
-        let mut reader = ::las::Reader::new(BufReader::new(file))
+    check_chunk_table(&mut rd, file_len, offset, path)?;
+    seek(&mut rd, 0, path)?;
+    let decode = move || -> Result<Vec<u8>> {
+        let mut reader = ::las::Reader::new(rd)
             .map_err(|e| Error::format(path, format!("unreadable LAZ: {e}")))?;
         let mut batch = PointDataBuilder::new().for_header(reader.header()).build();
         // Grow with what was really decoded: the header's count is not trusted for memory.
@@ -442,8 +519,12 @@ pub(super) fn read_laz_points(
 /// Rejects a chunk table whose entry count could not fit in the file, before the LAZ decoder
 /// allocates for it.
 #[cfg(feature = "laz")]
-pub(super) fn check_chunk_table(path: &Path, file_len: u64, offset: u64) -> Result<()> {
-    let mut f = File::open(path).map_err(|e| Error::io(path, e))?;
+pub(super) fn check_chunk_table<R: Read + Seek>(
+    f: &mut R,
+    file_len: u64,
+    offset: u64,
+    path: &Path,
+) -> Result<()> {
     let mut read_i64_at = |at: u64| -> Option<i64> {
         let mut b = [0u8; 8];
         f.seek(SeekFrom::Start(at)).ok()?;

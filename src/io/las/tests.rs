@@ -84,6 +84,6 @@ fn compressed_needs_the_feature() {
     let mut bytes = w.into_inner().unwrap().into_inner();
     bytes[104] |= 0x80;
     std::fs::write(&p, bytes).unwrap();
-    let input_err = read_las(&p).unwrap_err().to_string();
+    let input_err = LasInput::from_path(&p).unwrap_err().to_string();
     assert!(input_err.contains("--features laz") && input_err.contains("a.laz"));
 }
