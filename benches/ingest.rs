@@ -2,7 +2,7 @@
 //!
 //! A synthetic terrestrial scan of the room (1440×720, ≈1M vertices: float x y z, float
 //! nx ny nz, int row col; binary little endian) is written to a temporary directory, then:
-//! PLY parsing (`PlyFile::read_path`) and the whole scan reader in MB/s of the file, and the
+//! PLY parsing (`PlyFile::from_path`) and the whole scan reader in MB/s of the file, and the
 //! prepared view's products (`save_view`, `load_view`, `load_maps_for_merge`) for both EXR
 //! compressions, in seconds and MB/s of the product files.
 
@@ -52,10 +52,10 @@ fn main() {
         size / scan.len().max(1) as u64
     );
 
-    let _warm = PlyFile::read_path(&ply).expect("read ply");
-    let (t, _) = best_of(5, || PlyFile::read_path(&ply).expect("read ply"));
+    let _warm = PlyFile::from_path(&ply).expect("read ply");
+    let (t, _) = best_of(5, || PlyFile::from_path(&ply).expect("read ply"));
     println!(
-        "PlyFile::read_path      {:7.3} s  {:7.0} MB/s",
+        "PlyFile::from_path      {:7.3} s  {:7.0} MB/s",
         t,
         mb(size) / t
     );
@@ -66,7 +66,7 @@ fn main() {
         mb(size) / t
     );
     // Where the scan reader's time goes beyond parsing.
-    let parsed = PlyFile::read_path(&ply).expect("read ply");
+    let parsed = PlyFile::from_path(&ply).expect("read ply");
     let (t_xyz, _) = best_of(3, || parsed.vertex_xyz().expect("xyz"));
     let (t_nrm, _) = best_of(3, || {
         parsed

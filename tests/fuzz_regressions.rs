@@ -91,7 +91,7 @@ fn ply_parse_comment_inner_cr_roundtrip() {
         b"ply\nformat ascii 1.0\ncomment a\rb\r\nobj_info c\rd\nend_header\n",
     )
     .unwrap();
-    let ply = PlyFile::read_path(&p).unwrap();
+    let ply = PlyFile::from_path(&p).unwrap();
     assert_eq!(ply.header.comments, vec!["a b"]);
     assert_eq!(ply.header.obj_info, vec!["c d"]);
 }
@@ -117,7 +117,7 @@ fn ply_parse_retain_negative_face_index() {
          0 0 0\n1 1 1\n1 -1\n1 0.5\n1 nan\n2 0 1\n1 -1\n1 1\n",
     )
     .unwrap();
-    let kept = PlyFile::read_path(&p)
+    let kept = PlyFile::from_path(&p)
         .unwrap()
         .retain_vertices(&[true, true])
         .unwrap();

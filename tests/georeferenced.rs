@@ -51,7 +51,7 @@ fn double_coordinates_far_from_the_origin_are_recentred() {
     for (p, q) in scan.points.iter().zip(&s.points) {
         assert!((p.as_dvec3() + o - (q.as_dvec3() + off)).length() < 1e-3);
     }
-    let res = PlyFile::read_path(&out.join("geo.mvao.ply")).unwrap();
+    let res = PlyFile::from_path(&out.join("geo.mvao.ply")).unwrap();
     for (k, c) in ["x", "y", "z"].iter().enumerate() {
         assert_eq!(
             res.scalar_column("vertex", c).unwrap(),

@@ -148,18 +148,39 @@ impl PtxInput {
     }
 }
 
-/// Reads a PTX file (see the module documentation).
-///
-/// Errors name the file, the block (from 1) and the line: a header line that is not what it
-/// should be, a point line with a bad number or a wrong number of values, a block with
-/// another number of points than `columns × rows` says, a truncated file.
-pub fn read_ptx(path: &Path) -> Result<PtxInput> {
-    let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse_ptx(&data, path)
+/// The name errors and scans take when PTX is read from a stream rather than a file.
+const STREAM: &str = "(PTX stream)";
+
+impl PtxInput {
+    /// Reads a PTX file (see the module documentation).
+    ///
+    /// Errors name the file, the block (from 1) and the line: a header line that is not what it
+    /// should be, a point line with a bad number or a wrong number of values, a block with
+    /// another number of points than `columns × rows` says, a truncated file.
+    pub fn from_path(path: &Path) -> Result<PtxInput> {
+        let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Self::from_bytes(&data, path)
+    }
+
+    /// Reads PTX from any stream, as [`PtxInput::from_path`] reads a file; errors name the
+    /// input `(PTX stream)`. The blocks are parsed in parallel from memory, so the stream is
+    /// read whole first.
+    pub fn new<R: std::io::Read>(mut reader: R) -> Result<PtxInput> {
+        let path = Path::new(STREAM);
+        let mut data = Vec::new();
+        reader
+            .read_to_end(&mut data)
+            .map_err(|e| Error::io(path, e))?;
+        Self::from_bytes(&data, path)
+    }
+
+    /// Parses PTX bytes already in memory; `path` names them in messages and scan names.
+    pub fn from_bytes(data: &[u8], path: &Path) -> Result<PtxInput> {
+        parse_ptx(data, path)
+    }
 }
 
-/// Parses PTX bytes already in memory; `path` names them in messages and scan names.
-pub fn parse_ptx(data: &[u8], path: &Path) -> Result<PtxInput> {
+fn parse_ptx(data: &[u8], path: &Path) -> Result<PtxInput> {
     let stem = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())

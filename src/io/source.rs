@@ -189,7 +189,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
         .unwrap_or_else(|| path.display().to_string());
     match format {
         Format::Ply => {
-            let (ply, warnings) = PlyFile::read_path_warn(path)?;
+            let (ply, warnings) = PlyFile::from_path_warn(path)?;
             let raw = super::ply::scan::raw_from_ply(&ply, path, &stem)?;
             let (scan, off) = scan_from_raw(raw, path)?;
             Ok(InputFile {
@@ -214,7 +214,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
             })
         }
         Format::E57 => {
-            let e = super::e57::read_e57(path)?;
+            let e = super::e57::E57Input::from_path(path)?;
             let (scans, offs) = scans_of(e.raw_scans(), path)?;
             Ok(InputFile {
                 path: path.to_path_buf(),
@@ -226,7 +226,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
             })
         }
         Format::Ptx => {
-            let p = super::ptx::read_ptx(path)?;
+            let p = super::ptx::PtxInput::from_path(path)?;
             let (scans, offs) = scans_of(p.raw_scans(), path)?;
             Ok(InputFile {
                 path: path.to_path_buf(),

@@ -1,6 +1,6 @@
 //! E57 (ASTM E2807) scans in, results out, through the `e57` crate.
 //!
-//! **Reading** ([`read_e57`]) keeps every `data3D` point cloud as stored: coordinates stay in
+//! **Reading** ([`E57Input::from_path`]) keeps every `data3D` point cloud as stored: coordinates stay in
 //! the scan's own frame (Cartesian as stored, spherical converted to Cartesian in f64), the
 //! `pose` becomes [`RawScan::pose`], `rowIndex`/`columnIndex` become the native grid, and a
 //! record whose invalid state is set (or whose coordinates are not finite) becomes a
@@ -29,7 +29,6 @@
 mod read;
 mod write;
 
-pub use read::read_e57;
 use read::{find, Column};
 use write::{check_ao, is_mvao_ao};
 pub use write::{result_colours, write_e57, write_e57_scans, write_table_e57};

@@ -150,52 +150,57 @@ pub(super) fn bit_size(dt: &RecordDataType) -> u64 {
     }
 }
 
-/// Reads every point cloud of an E57 file (see the module documentation).
-///
-/// Errors: the file cannot be opened or is not E57, a scan's data is truncated or corrupt
-/// (the message names the scan), a scan has no coordinates, a pose is not a rotation plus
-/// translation, or the file holds several scans of which none has a pose.
-pub fn read_e57(path: &Path) -> Result<E57Input> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
-    let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-    let reader = E57Reader::new(BufReader::new(file))
-        .map_err(|e| Error::format(path, format!("not a readable E57 file: {e}")))?;
-    let clouds = reader.pointclouds();
-    let guid = reader.guid().to_string();
-    let coordinate_metadata = reader.coordinate_metadata().map(str::to_string);
-    let extensions = reader.extensions();
-    drop(reader);
-    if clouds.is_empty() {
-        return Err(Error::format(path, "E57 file holds no data3D point cloud"));
+impl E57Input {
+    /// Reads every point cloud of an E57 file (see the module documentation).
+    ///
+    /// Errors: the file cannot be opened or is not E57, a scan's data is truncated or corrupt
+    /// (the message names the scan), a scan has no coordinates, a pose is not a rotation plus
+    /// translation, or the file holds several scans of which none has a pose.
+    ///
+    /// There is no reader over a stream: the scans are decoded in parallel, each from its own
+    /// handle on the file.
+    pub fn from_path(path: &Path) -> Result<E57Input> {
+        let file = File::open(path).map_err(|e| Error::io(path, e))?;
+        let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+        let reader = E57Reader::new(BufReader::new(file))
+            .map_err(|e| Error::format(path, format!("not a readable E57 file: {e}")))?;
+        let clouds = reader.pointclouds();
+        let guid = reader.guid().to_string();
+        let coordinate_metadata = reader.coordinate_metadata().map(str::to_string);
+        let extensions = reader.extensions();
+        drop(reader);
+        if clouds.is_empty() {
+            return Err(Error::format(path, "E57 file holds no data3D point cloud"));
+        }
+        let stem = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scan".into());
+        let names = scan_names(&clouds, &stem);
+        // One reader per scan, so several scans decode in parallel.
+        let results: Vec<Result<E57Scan>> = clouds
+            .par_iter()
+            .zip(names)
+            .map(|(pc, name)| read_cloud(path, file_len, pc, name))
+            .collect();
+        let scans = results.into_iter().collect::<Result<Vec<_>>>()?;
+        if scans.len() > 1 && !scans.iter().any(|s| s.has_pose) {
+            return Err(Error::format(
+                path,
+                format!(
+                    "{} scans and none has a pose; the scans cannot be placed",
+                    scans.len()
+                ),
+            ));
+        }
+        Ok(E57Input {
+            path: path.to_path_buf(),
+            guid,
+            coordinate_metadata,
+            extensions,
+            scans,
+        })
     }
-    let stem = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "scan".into());
-    let names = scan_names(&clouds, &stem);
-    // One reader per scan, so several scans decode in parallel.
-    let results: Vec<Result<E57Scan>> = clouds
-        .par_iter()
-        .zip(names)
-        .map(|(pc, name)| read_cloud(path, file_len, pc, name))
-        .collect();
-    let scans = results.into_iter().collect::<Result<Vec<_>>>()?;
-    if scans.len() > 1 && !scans.iter().any(|s| s.has_pose) {
-        return Err(Error::format(
-            path,
-            format!(
-                "{} scans and none has a pose; the scans cannot be placed",
-                scans.len()
-            ),
-        ));
-    }
-    Ok(E57Input {
-        path: path.to_path_buf(),
-        guid,
-        coordinate_metadata,
-        extensions,
-        scans,
-    })
 }
 
 /// Unique, file-name-safe scan names.

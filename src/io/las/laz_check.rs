@@ -7,7 +7,9 @@
 
 use std::path::Path;
 
-use crate::error::{Error, Result};
+#[cfg(feature = "laz")]
+use crate::error::Error;
+use crate::error::Result;
 
 /// Checks the chunk table and, for layered compression, every chunk's layer sizes.
 /// `laszip_vlr` is the payload of the LASzip VLR; `offset` is the offset to point data and

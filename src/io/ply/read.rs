@@ -11,14 +11,14 @@ impl PlyFile {
     /// Reads a PLY file (ascii, binary little or big endian). Errors name `path` and say what is
     /// wrong: not a PLY, bad header line, unknown type, truncated body (with element and row),
     /// unparsable ascii value, an ascii row with too few or too many values (with its line).
-    /// Data after the last element is ignored ([`PlyFile::read_path_warn`] reports it).
-    pub fn read_path(path: &Path) -> Result<PlyFile> {
-        Self::read_path_warn(path).map(|(ply, _)| ply)
+    /// Data after the last element is ignored ([`PlyFile::from_path_warn`] reports it).
+    pub fn from_path(path: &Path) -> Result<PlyFile> {
+        Self::from_path_warn(path).map(|(ply, _)| ply)
     }
 
-    /// [`PlyFile::read_path`], with what the user should know about the file: data after the
+    /// [`PlyFile::from_path`], with what the user should know about the file: data after the
     /// last element (some writers pad their files, so it is not an error).
-    pub fn read_path_warn(path: &Path) -> Result<(PlyFile, Vec<String>)> {
+    pub fn from_path_warn(path: &Path) -> Result<(PlyFile, Vec<String>)> {
         let file = File::open(path).map_err(|e| Error::io(path, e))?;
         let len = file
             .metadata()

@@ -24,7 +24,7 @@ const ROW_COL_NAMES: [(&str, &str); 3] = [
 /// Reads `path` as a scan (identity pose) and returns it with the parsed file, which the
 /// writer reuses so every input property is kept.
 pub fn read_scan(path: &Path) -> Result<(Scan, PlyFile)> {
-    let ply = PlyFile::read_path(path)?;
+    let ply = PlyFile::from_path(path)?;
     let scan = scan_from_ply(&ply, path)?;
     Ok((scan, ply))
 }

@@ -18,13 +18,13 @@ fn write_tmp(dir: &tempfile::TempDir, name: &str, bytes: &[u8]) -> PathBuf {
 fn read_bytes(bytes: &[u8]) -> Result<PlyFile> {
     let dir = tempfile::tempdir().unwrap();
     let p = write_tmp(&dir, "t.ply", bytes);
-    PlyFile::read_path(&p)
+    PlyFile::from_path(&p)
 }
 
 fn read_warn(bytes: &[u8]) -> (PlyFile, Vec<String>) {
     let dir = tempfile::tempdir().unwrap();
     let p = write_tmp(&dir, "t.ply", bytes);
-    match PlyFile::read_path_warn(&p) {
+    match PlyFile::from_path_warn(&p) {
         Ok(r) => r,
         Err(e) => panic!("read failed: {e}"),
     }
@@ -51,7 +51,7 @@ fn round_trip(p: &PlyFile) -> PlyFile {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.ply");
     p.write_path(&out).unwrap();
-    let back = PlyFile::read_path(&out).unwrap();
+    let back = PlyFile::from_path(&out).unwrap();
     assert_eq!(back.header.encoding, Encoding::BinaryLe);
     back
 }
@@ -935,7 +935,7 @@ fn ascii_rows_are_lines() {
     // The message names the file.
     let dir = tempfile::tempdir().unwrap();
     let p = write_tmp(&dir, "bad.ply", src.as_bytes());
-    let msg = PlyFile::read_path(&p).unwrap_err().to_string();
+    let msg = PlyFile::from_path(&p).unwrap_err().to_string();
     assert!(msg.contains("bad.ply") && msg.contains("line 10"), "{msg}");
     // Lists: the count says how many items the line holds.
     let lhead = "ply\nformat ascii 1.0\nelement face 2\nproperty list uchar int v\n\
@@ -975,11 +975,11 @@ fn ascii_rows_are_lines() {
 fn missing_file_is_io_error_with_path() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("nope.ply");
-    match PlyFile::read_path(&p) {
+    match PlyFile::from_path(&p) {
         Err(Error::Io { path, .. }) => assert_eq!(path, p),
         other => panic!("expected io error, got {other:?}"),
     }
-    let msg = PlyFile::read_path(&p).unwrap_err().to_string();
+    let msg = PlyFile::from_path(&p).unwrap_err().to_string();
     assert!(msg.contains("nope.ply"), "{msg}");
 }
 
@@ -1083,7 +1083,7 @@ fn inconsistent_data_is_an_error_not_a_panic() {
     let out = dir.path().join("o.ply");
     p.write_path(&out).unwrap();
     assert_eq!(
-        PlyFile::read_path(&out).unwrap().header.comments,
+        PlyFile::from_path(&out).unwrap().header.comments,
         vec!["multi line"]
     );
     p.data[0].bytes.pop();
@@ -1154,7 +1154,7 @@ fn mutated_files_never_panic() {
             }
         }
         std::fs::write(&path, &b).unwrap();
-        if let Ok(p) = PlyFile::read_path(&path) {
+        if let Ok(p) = PlyFile::from_path(&path) {
             for (def, _) in p.header.elements.iter().zip(&p.data) {
                 for prop in &def.props {
                     let _ = p.scalar_column(&def.name, &prop.name);
@@ -1193,7 +1193,7 @@ fn fixture_stanford_bunny_counts() {
         ("top3", 36023),
     ];
     for (name, n) in scans {
-        let p = PlyFile::read_path(&fixture(&format!("stanford-bunny/{name}.ply"))).unwrap();
+        let p = PlyFile::from_path(&fixture(&format!("stanford-bunny/{name}.ply"))).unwrap();
         assert_eq!(p.header.encoding, Encoding::BinaryLe, "{name}");
         assert!(
             p.header.obj_info.iter().any(|o| o == "num_cols 512"),
@@ -1212,7 +1212,7 @@ fn fixture_stanford_bunny_counts() {
         assert!(grid.iter().all(|c| c.len() <= 1), "{name}");
         assert_eq!(idx, (0..n as u32).collect::<Vec<_>>(), "{name}");
     }
-    let p = PlyFile::read_path(&fixture("stanford-bunny/bun000.ply")).unwrap();
+    let p = PlyFile::from_path(&fixture("stanford-bunny/bun000.ply")).unwrap();
     assert_eq!(
         p.vertex_xyz().unwrap()[0],
         [
@@ -1227,7 +1227,7 @@ fn fixture_stanford_bunny_counts() {
 #[test]
 fn fixture_3dtk_counts() {
     for name in ["scan000", "scan001", "scan002"] {
-        let p = PlyFile::read_path(&fixture(&format!("3dtk-uos-3scans/{name}.ply"))).unwrap();
+        let p = PlyFile::from_path(&fixture(&format!("3dtk-uos-3scans/{name}.ply"))).unwrap();
         assert_eq!(p.vertex_xyz().unwrap().len(), 81360, "{name}");
         let row = p.scalar_column("vertex", "row").unwrap();
         let col = p.scalar_column("vertex", "col").unwrap();
