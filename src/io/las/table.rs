@@ -35,40 +35,7 @@ pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result
     let keep: Vec<usize> = (0..n)
         .filter(|&k| world[k].iter().all(|c| c.is_finite()))
         .collect();
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for &k in &keep {
-        for a in 0..3 {
-            lo[a] = lo[a].min(world[k][a]);
-            hi[a] = hi[a].max(world[k][a]);
-        }
-    }
-    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-    let exp = grid_exponent(extent);
-    let axis = |a: usize| {
-        if keep.is_empty() {
-            return Transform {
-                scale: 1e-4,
-                offset: 0.0,
-            };
-        }
-        let offset = ((lo[a] + hi[a]) * 0.5).round();
-        let half = (hi[a] - offset).max(offset - lo[a]);
-        // Coarser where the extent would overflow the 32-bit integers.
-        let mut e = exp;
-        while half / pow10(e) > 2.0e9 && e < 300 {
-            e += 1;
-        }
-        Transform {
-            scale: pow10(e),
-            offset,
-        }
-    };
-    let transforms = Vector {
-        x: axis(0),
-        y: axis(1),
-        z: axis(2),
-    };
+    let transforms = grid_of(&world, &keep);
     let grid = [transforms.x, transforms.y, transforms.z];
     let mut warnings = Vec::new();
     let merged = merged_points(&world, &keep, &grid);
@@ -82,36 +49,10 @@ pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result
         ));
     }
 
-    // Extra dimensions: ao, then each extra field as f64 with a unique name.
-    let mut names: Vec<String> = vec![AO_NAME.to_string()];
-    let mut data = descriptor(AO_NAME, 9, 0, AO_DESCRIPTION, Some((0.0, 1.0))).to_vec();
-    let mut nodata = Vec::new();
-    for (k, (name, values)) in table.extra.iter().enumerate() {
-        let base = if name.is_empty() {
-            format!("extra_{k}")
-        } else {
-            name.clone()
-        };
-        let mut unique = truncate_utf8(&base, 32).to_string();
-        let mut i = 2;
-        while names.contains(&unique) {
-            let suffix = format!("_{i}");
-            unique = format!("{}{suffix}", truncate_utf8(&base, 32 - suffix.len()));
-            i += 1;
-        }
-        // No NaN reaches the file: non-finite values become the declared no-data value.
-        let has_nodata = values.iter().any(|v| !v.is_finite());
-        let mut d = descriptor(&unique, 10, 0, "", None);
-        if has_nodata {
-            d[3] |= 1;
-            d[40..48].copy_from_slice(&f64::MIN.to_le_bytes());
-        }
-        data.extend(d);
-        nodata.push(has_nodata);
-        names.push(unique);
-    }
+    let data = extra_descriptors(table);
     let id = if table.rgb.is_some() { 7 } else { 6 };
-    let mut format = Format::new(id).expect("format 6/7");
+    let mut format =
+        Format::new(id).map_err(|e| write_error(out, format!("point format {id}: {e}")))?;
     format.extra_bytes = (4 + 8 * table.extra.len()) as u16;
     format.is_compressed = compress;
     let mut builder = Builder::from((1, 4));
@@ -161,6 +102,77 @@ pub fn write_table_las(table: &PointTable, out: &Path, compress: bool) -> Result
     };
     write_points(out, header, keep.len(), fill, waveform)?;
     Ok(warnings)
+}
+
+/// The quantisation grid of table output: per axis an offset on a whole metre near the data and
+/// the step of [`grid_exponent`], coarser where the extent would overflow 32-bit integers.
+fn grid_of(world: &[[f64; 3]], keep: &[usize]) -> Vector<Transform> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for &k in keep {
+        for a in 0..3 {
+            lo[a] = lo[a].min(world[k][a]);
+            hi[a] = hi[a].max(world[k][a]);
+        }
+    }
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    let exp = grid_exponent(extent);
+    let axis = |a: usize| {
+        if keep.is_empty() {
+            return Transform {
+                scale: 1e-4,
+                offset: 0.0,
+            };
+        }
+        let offset = ((lo[a] + hi[a]) * 0.5).round();
+        let half = (hi[a] - offset).max(offset - lo[a]);
+        // Coarser where the extent would overflow the 32-bit integers.
+        let mut e = exp;
+        while half / pow10(e) > 2.0e9 && e < 300 {
+            e += 1;
+        }
+        Transform {
+            scale: pow10(e),
+            offset,
+        }
+    };
+    let transforms = Vector {
+        x: axis(0),
+        y: axis(1),
+        z: axis(2),
+    };
+    transforms
+}
+
+/// The extra-bytes descriptors of table output: `ao`, then each extra field as f64 with a
+/// unique name.
+fn extra_descriptors(table: &PointTable) -> Vec<u8> {
+    let mut names: Vec<String> = vec![AO_NAME.to_string()];
+    let mut data = descriptor(AO_NAME, 9, 0, AO_DESCRIPTION, Some((0.0, 1.0))).to_vec();
+    for (k, (name, values)) in table.extra.iter().enumerate() {
+        let base = if name.is_empty() {
+            format!("extra_{k}")
+        } else {
+            name.clone()
+        };
+        let mut unique = truncate_utf8(&base, 32).to_string();
+        let mut i = 2;
+        while names.contains(&unique) {
+            let suffix = format!("_{i}");
+            unique = format!("{}{suffix}", truncate_utf8(&base, 32 - suffix.len()));
+            i += 1;
+        }
+        // No NaN reaches the file: non-finite values become the declared no-data value.
+        let has_nodata = values.iter().any(|v| !v.is_finite());
+        let mut d = descriptor(&unique, 10, 0, "", None);
+        if has_nodata {
+            d[3] |= 1;
+            d[40..48].copy_from_slice(&f64::MIN.to_le_bytes());
+        }
+        data.extend(d);
+        names.push(unique);
+    }
+    data
 }
 
 /// The coarsest grid step of table output, 0.1 mm (10^-4 m): scans of scenes a metre or more

@@ -47,8 +47,14 @@ pub fn write_las(
         9 => 10,
         id => id,
     };
-    let in_std = STD_LEN[input.format_id as usize];
-    let out_std = STD_LEN[out_id as usize];
+    let std_len = |id: u8| {
+        STD_LEN
+            .get(id as usize)
+            .copied()
+            .ok_or_else(|| write_error(out, format!("unknown point format {id}")))
+    };
+    let in_std = std_len(input.format_id)?;
+    let out_std = std_len(out_id)?;
     let in_extra = input.record_len - in_std;
     let paint = match (input.format.has_color, color) {
         (false, _) => Paint::Grey,
@@ -57,7 +63,8 @@ pub fn write_las(
         (true, ColorMode::Modulate) => Paint::Modulate,
     };
     // RGB goes where the output format has it; formats without colour get it inserted there.
-    let rgb_at = rgb_offset(out_id).expect("output format has colour");
+    let rgb_at = rgb_offset(out_id)
+        .ok_or_else(|| write_error(out, format!("point format {out_id} has no colour")))?;
     let (insert_at, insert_len) = if out_id != input.format_id {
         (rgb_at, out_std - in_std)
     } else {
@@ -65,8 +72,79 @@ pub fn write_las(
     };
     let mut vlrs = input.builder.vlrs.clone();
     let mut evlrs = input.builder.evlrs.clone();
+    let (ao_at, ao_type, out_extra) =
+        ao_layout(input, in_extra, insert_len, out_std, &mut vlrs, &mut evlrs)?;
+    let mut format =
+        Format::new(out_id).map_err(|e| write_error(out, format!("point format {out_id}: {e}")))?;
+    format.extra_bytes = out_extra as u16;
+    format.is_compressed = compress;
+
+    let mut builder = input.builder.clone();
+    builder.vlrs = vlrs;
+    builder.evlrs = evlrs;
+    builder.point_format = format;
+    builder.generating_software = software();
+    builder.system_identifier = las_ascii(&builder.system_identifier, 32);
+    for v in builder.vlrs.iter_mut().chain(builder.evlrs.iter_mut()) {
+        v.user_id = las_ascii(&v.user_id, 16);
+        v.description = las_ascii(&v.description, 32);
+    }
+    let header = output_header(input, builder, format, out)?;
+    let waveform = WaveformPatch {
+        bits: if format.has_waveform {
+            input.global_encoding & WAVEFORM_BITS
+        } else {
+            0
+        },
+        evlr: input.waveform_evlr.filter(|_| format.has_waveform),
+    };
+
+    let out_len = format.len() as usize;
+    let in_len = input.record_len;
+    let fill = |dst: &mut [u8], first: usize| {
+        let n = dst.len() / out_len;
+        let src = &input.records[first * in_len..(first + n) * in_len];
+        dst.par_chunks_exact_mut(out_len)
+            .zip(src.par_chunks_exact(in_len))
+            .zip(&ao[first..first + n])
+            .for_each(|((o, i), &a)| {
+                o[..insert_at].copy_from_slice(&i[..insert_at]);
+                o[insert_at..insert_at + insert_len].fill(0);
+                o[insert_at + insert_len..insert_len + in_len].copy_from_slice(&i[insert_at..]);
+                let g = grey(a, gamma) as u16;
+                for c in 0..3 {
+                    let at = rgb_at + 2 * c;
+                    let old = u16::from_le_bytes([o[at], o[at + 1]]);
+                    let new = match paint {
+                        Paint::Keep => old,
+                        Paint::Grey | Paint::Replace => g * 257,
+                        Paint::Modulate => ((old as u32 * g as u32 + 127) / 255) as u16,
+                    };
+                    o[at..at + 2].copy_from_slice(&new.to_le_bytes());
+                }
+                match ao_type {
+                    AoType::F32 => o[ao_at..ao_at + 4].copy_from_slice(&a.to_le_bytes()),
+                    AoType::F64 => o[ao_at..ao_at + 8].copy_from_slice(&(a as f64).to_le_bytes()),
+                }
+            });
+    };
+    write_points(out, header, input.len(), fill, waveform)
+}
+
+/// Where `write_las` puts `ao` in the output record, in which type, and how many extra bytes
+/// the output record has: an existing float `ao` dimension is reused, else one is described
+/// (in the extra-bytes VLR) after the input's `in_extra` extra bytes. `insert_len` is the colour
+/// inserted before the extra bytes, `out_std` the output format's standard record length.
+fn ao_layout(
+    input: &LasInput,
+    in_extra: usize,
+    insert_len: usize,
+    out_std: usize,
+    vlrs: &mut Vec<Vlr>,
+    evlrs: &mut [Vlr],
+) -> Result<(usize, AoType, usize)> {
     let existing = input.extra.iter().find(|d| d.name == AO_NAME);
-    let (ao_at, ao_type, out_extra) = match existing {
+    Ok(match existing {
         Some(d) if d.data_type == 9 && d.scale.is_none() && d.value_offset.is_none() => {
             (d.offset + insert_len, AoType::F32, in_extra)
         }
@@ -112,21 +190,17 @@ pub fn write_las(
             }
             (out_std + in_extra, AoType::F32, in_extra + 4)
         }
-    };
-    let mut format = Format::new(out_id).expect("format 0-10");
-    format.extra_bytes = out_extra as u16;
-    format.is_compressed = compress;
+    })
+}
 
-    let mut builder = input.builder.clone();
-    builder.vlrs = vlrs;
-    builder.evlrs = evlrs;
-    builder.point_format = format;
-    builder.generating_software = software();
-    builder.system_identifier = las_ascii(&builder.system_identifier, 32);
-    for v in builder.vlrs.iter_mut().chain(builder.evlrs.iter_mut()) {
-        v.user_id = las_ascii(&v.user_id, 16);
-        v.description = las_ascii(&v.description, 32);
-    }
+/// The output header: the input's, in the input's LAS version when that can hold the output,
+/// else in LAS 1.4.
+fn output_header(
+    input: &LasInput,
+    mut builder: Builder,
+    format: Format,
+    out: &Path,
+) -> Result<Header> {
     let v = builder.version;
     // Legacy records hold return numbers up to 7, but before LAS 1.4 the header counts
     // points by return for 1–5 only.
@@ -145,8 +219,8 @@ pub fn write_las(
     } else {
         None
     };
-    let header = match header {
-        Some(h) => h,
+    match header {
+        Some(h) => Ok(h),
         None => {
             if v == Version::new(1, 0) && builder.vlr_padding.ends_with(&[0xCC, 0xDD]) {
                 // The point-data start signature belongs to LAS 1.0 only.
@@ -156,48 +230,9 @@ pub fn write_las(
             builder.version = Version::new(1, 4);
             builder
                 .into_header()
-                .map_err(|e| write_error(out, format!("cannot build the LAS header: {e}")))?
+                .map_err(|e| write_error(out, format!("cannot build the LAS header: {e}")))
         }
-    };
-    let waveform = WaveformPatch {
-        bits: if format.has_waveform {
-            input.global_encoding & WAVEFORM_BITS
-        } else {
-            0
-        },
-        evlr: input.waveform_evlr.filter(|_| format.has_waveform),
-    };
-
-    let out_len = format.len() as usize;
-    let in_len = input.record_len;
-    let fill = |dst: &mut [u8], first: usize| {
-        let n = dst.len() / out_len;
-        let src = &input.records[first * in_len..(first + n) * in_len];
-        dst.par_chunks_exact_mut(out_len)
-            .zip(src.par_chunks_exact(in_len))
-            .zip(&ao[first..first + n])
-            .for_each(|((o, i), &a)| {
-                o[..insert_at].copy_from_slice(&i[..insert_at]);
-                o[insert_at..insert_at + insert_len].fill(0);
-                o[insert_at + insert_len..insert_len + in_len].copy_from_slice(&i[insert_at..]);
-                let g = grey(a, gamma) as u16;
-                for c in 0..3 {
-                    let at = rgb_at + 2 * c;
-                    let old = u16::from_le_bytes([o[at], o[at + 1]]);
-                    let new = match paint {
-                        Paint::Keep => old,
-                        Paint::Grey | Paint::Replace => g * 257,
-                        Paint::Modulate => ((old as u32 * g as u32 + 127) / 255) as u16,
-                    };
-                    o[at..at + 2].copy_from_slice(&new.to_le_bytes());
-                }
-                match ao_type {
-                    AoType::F32 => o[ao_at..ao_at + 4].copy_from_slice(&a.to_le_bytes()),
-                    AoType::F64 => o[ao_at..ao_at + 8].copy_from_slice(&(a as f64).to_le_bytes()),
-                }
-            });
-    };
-    write_points(out, header, input.len(), fill, waveform)
+    }
 }
 
 /// Where the RGB of a point format starts.
