@@ -416,7 +416,47 @@ pub(super) fn read_cloud(
         }
     }
 
-    // Decode. The capacity is bounded by what the file can hold, not by the stored count.
+    let cols = decode(path, file_len, pc, bits, &fail)?;
+    let n = cols.first().map_or(0, Column::len);
+    if n as u64 != pc.records {
+        return Err(fail(format!(
+            "{} records declared, {n} decoded (truncated or corrupt)",
+            pc.records
+        )));
+    }
+
+    let xyz = positions(proto, &cols, cart, sph);
+    let invalid = xyz.par_iter().filter(|p| !p[0].is_finite()).count();
+
+    let grid = grid_of(pc, &cols);
+
+    let (normals, intensity, rgb) = attributes(pc, &cols);
+
+    Ok(E57Scan {
+        name,
+        descriptor: pc.clone(),
+        pose,
+        has_pose,
+        xyz,
+        grid,
+        normals,
+        intensity,
+        rgb,
+        invalid,
+        columns: cols,
+    })
+}
+
+/// The values of every record of `pc`, one column per prototype attribute. The capacity is
+/// bounded by what the file can hold (`bits` per record), not by the stored count.
+fn decode(
+    path: &Path,
+    file_len: u64,
+    pc: &PointCloud,
+    bits: u64,
+    fail: &dyn Fn(String) -> Error,
+) -> Result<Vec<Column>> {
+    let proto = &pc.prototype;
     let cap = pc.records.min(file_len.saturating_mul(8) / bits + 1) as usize;
     let mut cols: Vec<Column> = proto
         .iter()
@@ -447,19 +487,23 @@ pub(super) fn read_cloud(
                 .map_err(|m| fail(format!("record {k}: {}: {m}", record_label(&r.name))))?;
         }
     }
-    let n = cols.first().map_or(0, Column::len);
-    if n as u64 != pc.records {
-        return Err(fail(format!(
-            "{} records declared, {n} decoded (truncated or corrupt)",
-            pc.records
-        )));
-    }
+    Ok(cols)
+}
 
+/// Cartesian coordinates of every record: the Cartesian ones when valid, else the spherical
+/// ones converted, else NaN.
+fn positions(
+    proto: &[Record],
+    cols: &[Column],
+    cart: Option<[usize; 3]>,
+    sph: Option<[usize; 3]>,
+) -> Vec<[f64; 3]> {
+    let n = cols.first().map_or(0, Column::len);
     let dt = |i: usize| &proto[i].data_type;
     let state = |i: Option<usize>, k: usize| i.map_or(0, |i| cols[i].value(k, dt(i)) as i64);
-    let cart_state = ix(RecordName::CartesianInvalidState);
-    let sph_state = ix(RecordName::SphericalInvalidState);
-    let xyz: Vec<[f64; 3]> = (0..n)
+    let cart_state = find(proto, &RecordName::CartesianInvalidState);
+    let sph_state = find(proto, &RecordName::SphericalInvalidState);
+    (0..n)
         .into_par_iter()
         .map(|k| {
             if let Some(c) = cart {
@@ -487,10 +531,14 @@ pub(super) fn read_cloud(
             }
             [f64::NAN; 3]
         })
-        .collect();
-    let invalid = xyz.par_iter().filter(|p| !p[0].is_finite()).count();
+        .collect()
+}
 
-    let grid = match (ix(RecordName::RowIndex), ix(RecordName::ColumnIndex)) {
+/// The scan grid from the row and column indices, when there are both and they are in range.
+fn grid_of(pc: &PointCloud, cols: &[Column]) -> Option<RawGrid> {
+    let n = cols.first().map_or(0, Column::len);
+    let ix = |n: RecordName| find(&pc.prototype, &n);
+    match (ix(RecordName::RowIndex), ix(RecordName::ColumnIndex)) {
         (Some(ri), Some(ci)) if n > 0 => {
             let (r0, r1) = cols[ri].min_max_int().unwrap_or((0, 0));
             let (c0, c1) = cols[ci].min_max_int().unwrap_or((0, 0));
@@ -520,8 +568,19 @@ pub(super) fn read_cloud(
             }
         }
         _ => None,
-    };
+    }
+}
 
+/// Normals, intensity (0–1) and colour of every record, where the scan has them.
+#[allow(clippy::type_complexity)]
+fn attributes(
+    pc: &PointCloud,
+    cols: &[Column],
+) -> (Option<Vec<Vec3>>, Option<Vec<f32>>, Option<Vec<[u8; 3]>>) {
+    let proto = &pc.prototype;
+    let n = cols.first().map_or(0, Column::len);
+    let ix = |n: RecordName| find(proto, &n);
+    let dt = |i: usize| &proto[i].data_type;
     let normals = match (
         find_unknown(proto, "normalX"),
         find_unknown(proto, "normalY"),
@@ -603,17 +662,5 @@ pub(super) fn read_cloud(
         _ => None,
     };
 
-    Ok(E57Scan {
-        name,
-        descriptor: pc.clone(),
-        pose,
-        has_pose,
-        xyz,
-        grid,
-        normals,
-        intensity,
-        rgb,
-        invalid,
-        columns: cols,
-    })
+    (normals, intensity, rgb)
 }
