@@ -324,13 +324,26 @@ enum LineError {
     Colour(f64),
 }
 
-/// Parses one block starting at the cursor; `prev` is the previous block's (cols, rows).
-fn parse_block(
+/// The ten header lines of a block.
+struct BlockHeader {
+    cols: u32,
+    rows: u32,
+    /// Line number of the first header line.
+    header_line: usize,
+    /// Scanner position and x, y, z axes.
+    three: [DVec3; 4],
+    pose: DMat4,
+    header_mismatch: f64,
+}
+
+/// Reads block `b`'s header; `prev` is the previous block's size, to recognise a block that
+/// holds more points than it declares.
+fn parse_header(
     cur: &mut Cursor,
     b: usize,
     prev: Option<(u32, u32)>,
     path: &Path,
-) -> Result<PtxScan> {
+) -> Result<BlockHeader> {
     let err =
         |line: usize, msg: String| Error::format(path, format!("block {b}, line {line}: {msg}"));
     let truncated = |what: &str| {
@@ -400,6 +413,33 @@ fn parse_block(
     ]
     .into_iter()
     .fold(0.0, f64::max);
+    Ok(BlockHeader {
+        cols,
+        rows,
+        header_line,
+        three,
+        pose,
+        header_mismatch,
+    })
+}
+
+/// Parses one block starting at the cursor; `prev` is the previous block's (cols, rows).
+fn parse_block(
+    cur: &mut Cursor,
+    b: usize,
+    prev: Option<(u32, u32)>,
+    path: &Path,
+) -> Result<PtxScan> {
+    let err =
+        |line: usize, msg: String| Error::format(path, format!("block {b}, line {line}: {msg}"));
+    let BlockHeader {
+        cols,
+        rows,
+        header_line,
+        three,
+        pose,
+        header_mismatch,
+    } = parse_header(cur, b, prev, path)?;
 
     let n = cols as u64 * rows as u64;
     let declared = format!("block {b} declares {cols} × {rows} = {n} points");

@@ -344,10 +344,7 @@ pub(super) fn read_vlr(
     rd.read_exact(head).map_err(|e| e.to_string())?;
     let record_id = u16::from_le_bytes([head[18], head[19]]);
     let (len, desc) = if extended {
-        (
-            u64::from_le_bytes(head[20..28].try_into().expect("8 bytes")),
-            &head[28..60],
-        )
+        (u64::from_le_bytes(bytes8(&head[20..28])), &head[28..60])
     } else {
         (
             u16::from_le_bytes([head[20], head[21]]) as u64,
@@ -365,6 +362,13 @@ pub(super) fn read_vlr(
         description: c_string(desc),
         data,
     })
+}
+
+/// The first 8 bytes of `b` (which has at least 8) as an array.
+fn bytes8(b: &[u8]) -> [u8; 8] {
+    let mut a = [0u8; 8];
+    a.copy_from_slice(&b[..8]);
+    a
 }
 
 /// A NUL-terminated fixed-size string field.
@@ -416,7 +420,7 @@ pub(super) fn parse_extra_dims(
         let (data_type, options) = (d[2], d[3]);
         let size = extra_size(data_type, options)
             .ok_or_else(|| format!("dimension {} has unknown data type {data_type}", k + 1))?;
-        let f = |o: usize| f64::from_le_bytes(d[o..o + 8].try_into().expect("8 bytes"));
+        let f = |o: usize| f64::from_le_bytes(bytes8(&d[o..o + 8]));
         let scalar = (1..=10).contains(&data_type);
         dims.push(ExtraDim {
             name: c_string(&d[4..36]),
