@@ -19,14 +19,7 @@ const FN_LINES: usize = 150;
 const LARGE_FILES: &[&str] = &["ssao/horizon.rs"];
 
 /// Functions over [`FN_LINES`] (file, name) that are waiting to be split.
-const LARGE_FNS: &[(&str, &str)] = &[
-    ("io/e57/mod.rs", "read_cloud"),
-    ("io/las/mod.rs", "read_las"),
-    ("io/las/mod.rs", "write_las"),
-    ("io/las/mod.rs", "write_table_las"),
-    ("io/ptx.rs", "parse_block"),
-    ("plot.rs", "render_svg"),
-];
+const LARGE_FNS: &[(&str, &str)] = &[];
 
 /// One source file: its path under `src/` and its code with comments and literals blanked
 /// (line structure kept), cut before its unit tests.
