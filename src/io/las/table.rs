@@ -136,12 +136,11 @@ fn grid_of(world: &[[f64; 3]], keep: &[usize]) -> Vector<Transform> {
             offset,
         }
     };
-    let transforms = Vector {
+    Vector {
         x: axis(0),
         y: axis(1),
         z: axis(2),
-    };
-    transforms
+    }
 }
 
 /// The extra-bytes descriptors of table output: `ao`, then each extra field as f64 with a
