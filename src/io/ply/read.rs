@@ -12,6 +12,9 @@ impl PlyFile {
     /// wrong: not a PLY, bad header line, unknown type, truncated body (with element and row),
     /// unparsable ascii value, an ascii row with too few or too many values (with its line).
     /// Data after the last element is ignored ([`PlyFile::from_path_warn`] reports it).
+    ///
+    /// There is no reader over a stream: large bodies are read by several threads at once,
+    /// each at its own offset in the file.
     pub fn from_path(path: &Path) -> Result<PlyFile> {
         Self::from_path_warn(path).map(|(ply, _)| ply)
     }
