@@ -2,13 +2,13 @@
 //!
 //! A synthetic terrestrial scan of the room (1440×720, ≈1M vertices: float x y z, float
 //! nx ny nz, int row col; binary little endian) is written to a temporary directory, then:
-//! PLY parsing (`PlyFile::read_path`) and the whole scan reader in MB/s of the file, and the
+//! PLY parsing (`PlyFile::from_path`) and the whole scan reader in MB/s of the file, and the
 //! prepared view's products (`save_view`, `load_view`, `load_maps_for_merge`) for both EXR
 //! compressions, in seconds and MB/s of the product files.
 
 use glam::DVec3;
+use mvao::io::ply::scan;
 use mvao::io::ply::PlyFile;
-use mvao::io::scan_ply;
 use mvao::products::{
     load_maps_for_merge, load_view, save_view_with, InputRecord, Manifest, MapCompression,
     SaveOptions,
@@ -52,28 +52,28 @@ fn main() {
         size / scan.len().max(1) as u64
     );
 
-    let _warm = PlyFile::read_path(&ply).expect("read ply");
-    let (t, _) = best_of(5, || PlyFile::read_path(&ply).expect("read ply"));
+    let _warm = PlyFile::from_path(&ply).expect("read ply");
+    let (t, _) = best_of(5, || PlyFile::from_path(&ply).expect("read ply"));
     println!(
-        "PlyFile::read_path      {:7.3} s  {:7.0} MB/s",
+        "PlyFile::from_path      {:7.3} s  {:7.0} MB/s",
         t,
         mb(size) / t
     );
-    let (t, (s, _)) = best_of(3, || scan_ply::read_scan(&ply).expect("read scan"));
+    let (t, (s, _)) = best_of(3, || scan::read_scan(&ply).expect("read scan"));
     println!(
-        "scan_ply::read_scan     {:7.3} s  {:7.0} MB/s",
+        "scan::read_scan         {:7.3} s  {:7.0} MB/s",
         t,
         mb(size) / t
     );
     // Where the scan reader's time goes beyond parsing.
-    let parsed = PlyFile::read_path(&ply).expect("read ply");
+    let parsed = PlyFile::from_path(&ply).expect("read ply");
     let (t_xyz, _) = best_of(3, || parsed.vertex_xyz().expect("xyz"));
     let (t_nrm, _) = best_of(3, || {
         parsed
             .map_scalars("vertex", ["nx", "ny", "nz"], |v| v.map(|c| c as f32))
             .expect("normals")
     });
-    let (t_build, _) = best_of(3, || scan_ply::scan_from_ply(&parsed, &ply).expect("scan"));
+    let (t_build, _) = best_of(3, || scan::scan_from_ply(&parsed, &ply).expect("scan"));
     println!(
         "  of which scan_from_ply {:7.3} s: vertex_xyz {:.3} s, normals in one pass {:.3} s \
          (row/col likewise)",

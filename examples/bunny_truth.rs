@@ -85,7 +85,7 @@ fn main() -> anyhow::Result<()> {
         reference(std::slice::from_ref(file), &one, alone.clone())?;
         let joint = accuracy::read_ao(&accuracy::reference_path(&out.join("all"), &s.name))?;
         let own = accuracy::read_ao(&accuracy::reference_path(&alone, &s.name))?;
-        let ply = mvao::io::ply::PlyFile::read_path(&accuracy::reference_path(&alone, &s.name))?;
+        let ply = mvao::io::ply::PlyFile::from_path(&accuracy::reference_path(&alone, &s.name))?;
         let col = |c: &str| ply.scalar_column("vertex", c).unwrap_or_default();
         let (nx, ny, nz) = (col("nx"), col("ny"), col("nz"));
         let rot = glam::DMat3::from_mat4(s.pose);

@@ -15,7 +15,7 @@ fn main() -> ExitCode {
         eprintln!("usage: ply_convert IN.ply OUT.ply");
         return ExitCode::from(2);
     };
-    let ply = match PlyFile::read_path(input) {
+    let ply = match PlyFile::from_path(input) {
         Ok(p) => p,
         Err(e) => {
             eprintln!("error: {e}");

@@ -175,8 +175,8 @@ fn classes(
     a: &[f32],
     t: &[f32],
 ) -> anyhow::Result<()> {
-    let tp = mvao::io::ply::PlyFile::read_path(truth)?;
-    let rp = mvao::io::ply::PlyFile::read_path(refp)?;
+    let tp = mvao::io::ply::PlyFile::from_path(truth)?;
+    let rp = mvao::io::ply::PlyFile::from_path(refp)?;
     let nz = tp.scalar_column("vertex", "nz").unwrap_or_default();
     let rad = rp.scalar_column("vertex", "radius").unwrap_or_default();
     let mut sorted = rad.clone();

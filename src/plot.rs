@@ -119,49 +119,8 @@ pub fn render_svg(title: &str, y_name: &str, points: &[PlotPoint]) -> String {
         o,
         r#"<rect x="{l}" y="{t}" width="{pw}" height="{ph}" fill="none" stroke="black"/>"#
     );
-    let mut d = x0;
-    while d <= x1 + 1e-9 {
-        for m in 1..10 {
-            let s = 10f64.powf(d) * m as f64;
-            if s.log10() > x1 + 1e-9 {
-                break;
-            }
-            let x = sx(s);
-            let (len, col) = if m == 1 { (6.0, "#bbb") } else { (3.0, "#eee") };
-            let _ = writeln!(
-                o,
-                r#"<line x1="{x:.1}" y1="{t}" x2="{x:.1}" y2="{}" stroke="{col}"/><line x1="{x:.1}" y1="{}" x2="{x:.1}" y2="{}" stroke="black"/>"#,
-                t + ph,
-                t + ph,
-                t + ph + len
-            );
-            if m == 1 {
-                let _ = writeln!(
-                    o,
-                    r#"<text x="{x:.1}" y="{}" text-anchor="middle">{}</text>"#,
-                    t + ph + 20.0,
-                    fmt_seconds(s)
-                );
-            }
-        }
-        d += 1.0;
-    }
-    let ticks: Vec<f64> = if log_y {
-        let mut v = Vec::new();
-        let mut d = ly0;
-        while d <= ly1 + 1e-9 {
-            for m in [1.0, 2.0, 5.0] {
-                let e = 10f64.powf(d) * m;
-                if e.log10() <= ly1 + 1e-9 {
-                    v.push(e);
-                }
-            }
-            d += 1.0;
-        }
-        v
-    } else {
-        (0..=5).map(|k| y1 * k as f64 / 5.0).collect()
-    };
+    x_ticks(&mut o, x0, x1, &sx, (t, t + ph));
+    let ticks = y_ticks(log_y, (ly0, ly1), y1);
     for e in ticks {
         let y = sy(e);
         let _ = writeln!(
@@ -193,21 +152,7 @@ pub fn render_svg(title: &str, y_name: &str, points: &[PlotPoint]) -> String {
     );
     // Pareto front.
     let front = pareto_front(points);
-    if front.len() > 1 {
-        let mut path = String::new();
-        for (k, &i) in front.iter().enumerate() {
-            let (x, y) = (sx(points[i].seconds), sy(points[i].error));
-            if k == 0 {
-                let _ = write!(path, "M{x:.1},{y:.1}");
-            } else {
-                let _ = write!(path, " H{x:.1} V{y:.1}");
-            }
-        }
-        let _ = writeln!(
-            o,
-            r##"<path d="{path}" fill="none" stroke="#555" stroke-dasharray="5,4"/>"##
-        );
-    }
+    front_path(&mut o, points, &front, &sx, &sy);
     // Points and labels by series.
     let mut series: Vec<&str> = Vec::new();
     for p in &good {
@@ -262,6 +207,84 @@ pub fn render_svg(title: &str, y_name: &str, points: &[PlotPoint]) -> String {
     );
     o.push_str("</svg>\n");
     o
+}
+
+/// The Pareto front as a dashed staircase through `front` (indices into `points`).
+fn front_path(
+    o: &mut String,
+    points: &[PlotPoint],
+    front: &[usize],
+    sx: &dyn Fn(f64) -> f64,
+    sy: &dyn Fn(f64) -> f64,
+) {
+    if front.len() > 1 {
+        let mut path = String::new();
+        for (k, &i) in front.iter().enumerate() {
+            let (x, y) = (sx(points[i].seconds), sy(points[i].error));
+            if k == 0 {
+                let _ = write!(path, "M{x:.1},{y:.1}");
+            } else {
+                let _ = write!(path, " H{x:.1} V{y:.1}");
+            }
+        }
+        let _ = writeln!(
+            o,
+            r##"<path d="{path}" fill="none" stroke="#555" stroke-dasharray="5,4"/>"##
+        );
+    }
+}
+
+/// Decade and in-between ticks on the logarithmic x axis from `10^x0` to `10^x1` seconds, with
+/// grid lines from the plot's `top` to its `bottom` and labels at the decades.
+fn x_ticks(o: &mut String, x0: f64, x1: f64, sx: &dyn Fn(f64) -> f64, (top, bottom): (f64, f64)) {
+    let mut d = x0;
+    while d <= x1 + 1e-9 {
+        for m in 1..10 {
+            let s = 10f64.powf(d) * m as f64;
+            if s.log10() > x1 + 1e-9 {
+                break;
+            }
+            let x = sx(s);
+            let (len, col) = if m == 1 { (6.0, "#bbb") } else { (3.0, "#eee") };
+            let _ = writeln!(
+                o,
+                r#"<line x1="{x:.1}" y1="{top}" x2="{x:.1}" y2="{}" stroke="{col}"/><line x1="{x:.1}" y1="{}" x2="{x:.1}" y2="{}" stroke="black"/>"#,
+                bottom,
+                bottom,
+                bottom + len
+            );
+            if m == 1 {
+                let _ = writeln!(
+                    o,
+                    r#"<text x="{x:.1}" y="{}" text-anchor="middle">{}</text>"#,
+                    bottom + 20.0,
+                    fmt_seconds(s)
+                );
+            }
+        }
+        d += 1.0;
+    }
+}
+
+/// The y values that get a tick: 1, 2, 5 per decade from `10^ly0` to `10^ly1` on a log axis,
+/// else five steps to `y1`.
+fn y_ticks(log_y: bool, (ly0, ly1): (f64, f64), y1: f64) -> Vec<f64> {
+    if log_y {
+        let mut v = Vec::new();
+        let mut d = ly0;
+        while d <= ly1 + 1e-9 {
+            for m in [1.0, 2.0, 5.0] {
+                let e = 10f64.powf(d) * m;
+                if e.log10() <= ly1 + 1e-9 {
+                    v.push(e);
+                }
+            }
+            d += 1.0;
+        }
+        v
+    } else {
+        (0..=5).map(|k| y1 * k as f64 / 5.0).collect()
+    }
 }
 
 fn fmt_seconds(s: f64) -> String {

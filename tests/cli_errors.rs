@@ -102,7 +102,7 @@ fn non_finite_points_are_skipped_counted_and_never_written() {
     let r = mvao(&["merge", "-q", "-o", &s(&out), &s(&p), "--radius", "0.3"]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     assert!(String::from_utf8_lossy(&r.stderr).contains("2 vertices with non-finite coordinates"));
-    let o = PlyFile::read_path(&out.join("nan.mvao.ply")).unwrap();
+    let o = PlyFile::from_path(&out.join("nan.mvao.ply")).unwrap();
     assert_eq!(o.header.elements[0].count, 2998);
     let xyz = o.vertex_xyz().unwrap();
     assert!(xyz.iter().all(|p| p.iter().all(|v| v.is_finite())));
@@ -152,7 +152,7 @@ fn non_finite_properties_are_written_as_zero() {
         )),
         "{text}"
     );
-    let o = PlyFile::read_path(&out.join("nan_props.mvao.ply")).unwrap();
+    let o = PlyFile::from_path(&out.join("nan_props.mvao.ply")).unwrap();
     for prop in ["nx", "red", "green", "blue", "ao"] {
         let c = o.scalar_column("vertex", prop).unwrap();
         assert!(

@@ -4,7 +4,7 @@
 
 use e57::RecordName;
 use glam::{DMat4, DQuat, DVec3};
-use mvao::io::e57_file::*;
+use mvao::io::e57::*;
 use mvao::io::output::{grey, ColorMode};
 use mvao::io::raw::{PointTable, RawGrid};
 use mvao::Error;
@@ -42,7 +42,7 @@ fn corr(a: &[f64], b: &[f64]) -> f64 {
 
 #[test]
 fn pump_fixture() {
-    let inp = read_e57(&pump()).unwrap();
+    let inp = E57Input::from_path(&pump()).unwrap();
     assert_eq!(inp.scans.len(), 1);
     let s = &inp.scans[0];
     assert_eq!(s.name, "pumpA");
@@ -166,7 +166,7 @@ fn multi_scan_file_read_back() {
     let f = dir.path().join("site.e57");
     let st = three_stations();
     write_e57_scans(&st, &f).unwrap();
-    let inp = read_e57(&f).unwrap();
+    let inp = E57Input::from_path(&f).unwrap();
     assert_eq!(inp.scans.len(), 3);
     // Duplicate stored names are made unique; spaces are kept.
     let names: Vec<&str> = inp.scans.iter().map(|s| s.name.as_str()).collect();
@@ -215,7 +215,7 @@ fn poses_required_for_several_scans() {
         station("b", None, 5, 8, false),
     ];
     write_e57_scans(&st, &f).unwrap();
-    let e = read_e57(&f).unwrap_err();
+    let e = E57Input::from_path(&f).unwrap_err();
     let msg = e.to_string();
     assert!(matches!(e, Error::Format { .. }));
     assert!(msg.contains("loose.e57"), "{msg}");
@@ -230,7 +230,7 @@ fn poses_required_for_several_scans() {
         station("b", None, 5, 8, false),
     ];
     write_e57_scans(&st, &g).unwrap();
-    let inp = read_e57(&g).unwrap();
+    let inp = E57Input::from_path(&g).unwrap();
     assert!(inp.scans[0].has_pose && !inp.scans[1].has_pose);
     assert_eq!(inp.scans[1].pose, DMat4::IDENTITY);
     assert!(inp.scans[1].descriptor.transform.is_none());
@@ -239,7 +239,7 @@ fn poses_required_for_several_scans() {
     // A single scan without a pose is fine.
     let h = dir.path().join("one.e57");
     write_e57_scans(&[station("solo", None, 5, 8, false)], &h).unwrap();
-    assert_eq!(read_e57(&h).unwrap().scans[0].name, "solo");
+    assert_eq!(E57Input::from_path(&h).unwrap().scans[0].name, "solo");
 }
 
 fn ao_pattern(n: usize, salt: usize) -> Vec<f32> {
@@ -250,7 +250,7 @@ fn ao_pattern(n: usize, salt: usize) -> Vec<f32> {
 
 #[test]
 fn result_round_trip_pump() {
-    let inp = read_e57(&pump()).unwrap();
+    let inp = E57Input::from_path(&pump()).unwrap();
     let s = &inp.scans[0];
     let n = s.len();
     let ao = vec![ao_pattern(n, 3)];
@@ -259,7 +259,7 @@ fn result_round_trip_pump() {
     for mode in [ColorMode::Modulate, ColorMode::Replace, ColorMode::Keep] {
         let out = dir.path().join(format!("pump-{mode:?}.e57"));
         write_e57(&inp, &ao, gamma, mode, &out).unwrap();
-        let back = read_e57(&out).unwrap();
+        let back = E57Input::from_path(&out).unwrap();
         let b = &back.scans[0];
         assert_eq!(b.name, "pumpA");
         assert_eq!(b.len(), n);
@@ -317,11 +317,11 @@ fn result_round_trip_pump() {
     }
     // Writing the result of a result replaces mvao:ao instead of adding a second one.
     let first = dir.path().join("pump-Modulate.e57");
-    let r1 = read_e57(&first).unwrap();
+    let r1 = E57Input::from_path(&first).unwrap();
     let ao2 = vec![ao_pattern(n, 50)];
     let second = dir.path().join("second.e57");
     write_e57(&r1, &ao2, 1.0, ColorMode::Keep, &second).unwrap();
-    let r2 = read_e57(&second).unwrap();
+    let r2 = E57Input::from_path(&second).unwrap();
     let count = r2.scans[0]
         .descriptor
         .prototype
@@ -344,7 +344,7 @@ fn result_round_trip_multi_scan_with_invalid_records() {
     let dir = tempfile::tempdir().unwrap();
     let f = dir.path().join("site.e57");
     write_e57_scans(&three_stations(), &f).unwrap();
-    let inp = read_e57(&f).unwrap();
+    let inp = E57Input::from_path(&f).unwrap();
     let ao: Vec<Vec<f32>> = inp
         .scans
         .iter()
@@ -353,7 +353,7 @@ fn result_round_trip_multi_scan_with_invalid_records() {
         .collect();
     let out = dir.path().join("site.mvao.e57");
     write_e57(&inp, &ao, 1.0, ColorMode::Modulate, &out).unwrap();
-    let back = read_e57(&out).unwrap();
+    let back = E57Input::from_path(&out).unwrap();
     assert_eq!(back.scans.len(), 3);
     for ((a, b), want_ao) in inp.scans.iter().zip(&back.scans).zip(&ao) {
         assert_eq!(a.name, b.name);
@@ -399,7 +399,7 @@ fn bad_ao_is_refused_and_nothing_written() {
     let dir = tempfile::tempdir().unwrap();
     let f = dir.path().join("s.e57");
     write_e57_scans(&[station("a", None, 4, 6, false)], &f).unwrap();
-    let inp = read_e57(&f).unwrap();
+    let inp = E57Input::from_path(&f).unwrap();
     let out = dir.path().join("out.e57");
     let mut ao = vec![vec![0.5f32; inp.scans[0].len()]];
     ao[0][3] = f32::NAN;
@@ -456,7 +456,7 @@ fn tables_from_other_formats() {
     };
     let tables = vec![mk("bun000", p[0], 10, true), mk("bun045", p[1], 7, false)];
     write_table_e57(&tables, &out).unwrap();
-    let back = read_e57(&out).unwrap();
+    let back = E57Input::from_path(&out).unwrap();
     assert_eq!(back.scans.len(), 2);
     for (t, s) in tables.iter().zip(&back.scans) {
         assert_eq!(s.name, t.name);
@@ -492,7 +492,7 @@ fn tables_from_other_formats() {
     }
     assert_eq!(back.raw_scans()[1].normals.as_ref().unwrap().len(), 7);
     // A table of another E57 input round-trips its extras.
-    let inp = read_e57(&out).unwrap();
+    let inp = E57Input::from_path(&out).unwrap();
     let t = inp
         .point_table(0, &ao_pattern(10, 9), 1.0, ColorMode::Keep)
         .unwrap();
@@ -538,7 +538,7 @@ fn fix_crcs(bytes: &mut [u8]) {
 fn expect_clean_error(bytes: &[u8], dir: &Path, tag: &str) -> String {
     let f = dir.join(format!("bad-{tag}.e57"));
     std::fs::write(&f, bytes).unwrap();
-    let e = read_e57(&f).expect_err(tag);
+    let e = E57Input::from_path(&f).expect_err(tag);
     let msg = e.to_string();
     assert!(matches!(e, Error::Format { .. }), "{tag}: {msg}");
     assert!(msg.contains(&format!("bad-{tag}.e57")), "{tag}: {msg}");
@@ -575,7 +575,7 @@ fn truncated_and_corrupt_files_are_clean_errors() {
     let msg = expect_clean_error(b"ply\nformat ascii 1.0\nend_header\n", dir.path(), "ply");
     assert!(msg.contains("not a readable E57 file"), "{msg}");
     // A missing file is an I/O error naming it.
-    let e = read_e57(&dir.path().join("absent.e57")).unwrap_err();
+    let e = E57Input::from_path(&dir.path().join("absent.e57")).unwrap_err();
     assert!(matches!(e, Error::Io { .. }) && e.to_string().contains("absent.e57"));
 }
 
@@ -607,7 +607,7 @@ fn mutated_files_with_valid_checksums_never_panic() {
         }
         fix_crcs(&mut b);
         std::fs::write(&f, &b).unwrap();
-        match read_e57(&f) {
+        match E57Input::from_path(&f) {
             Ok(inp) => {
                 ok += 1;
                 // Whatever was decoded is consistent.

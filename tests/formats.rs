@@ -6,7 +6,7 @@ mod common;
 
 use common::*;
 use glam::{DMat4, DQuat, DVec3};
-use mvao::io::e57_file::{read_e57, write_e57_scans, E57ScanOut};
+use mvao::io::e57::{write_e57_scans, E57Input, E57ScanOut};
 use mvao::io::raw::{PointTable, RawGrid};
 use mvao::io::source::{read_input, Format};
 use mvao::synth::{scan_scene, Scene, Station};
@@ -82,7 +82,7 @@ fn the_real_e57_station_is_read_as_its_source_states_and_merged() {
         d.path().to_str().unwrap(),
         e57.to_str().unwrap(),
     ]);
-    let out = read_e57(&d.path().join("pumpAVisualReferenceImage.mvao.e57")).unwrap();
+    let out = E57Input::from_path(&d.path().join("pumpAVisualReferenceImage.mvao.e57")).unwrap();
     assert_eq!(out.scans.len(), 1);
     let ao = out.scans[0].values(&ao_record()).unwrap();
     assert_eq!(ao.len(), 155_201);
@@ -148,7 +148,7 @@ fn a_multi_scan_e57_is_merged_with_its_poses() {
         o.to_str().unwrap(),
         site.to_str().unwrap(),
     ]);
-    let res = read_e57(&o.join("site.mvao.e57")).unwrap();
+    let res = E57Input::from_path(&o.join("site.mvao.e57")).unwrap();
     assert_eq!(res.scans.len(), 3);
     let mut e57_ao = Vec::new();
     for (r, s) in res.scans.iter().zip(&sts) {
@@ -178,7 +178,7 @@ fn a_multi_scan_e57_is_merged_with_its_poses() {
     ]);
     for (s, ao) in sts.iter().zip(&e57_ao) {
         let p =
-            mvao::io::ply::PlyFile::read_path(&op.join(format!("{}.mvao.ply", s.name))).unwrap();
+            mvao::io::ply::PlyFile::from_path(&op.join(format!("{}.mvao.ply", s.name))).unwrap();
         let a = p.scalar_column("vertex", "ao").unwrap();
         assert_eq!(&a, ao, "{}: PLY and E57 outputs differ", s.name);
         let x = p.scalar_column("vertex", "x").unwrap();
@@ -243,7 +243,7 @@ fn a_ptx_file_with_two_blocks_is_merged() {
         ptx.to_str().unwrap(),
     ]);
     for s in &f.scans {
-        let p = mvao::io::ply::PlyFile::read_path(&o.join(format!("{}.mvao.ply", s.name))).unwrap();
+        let p = mvao::io::ply::PlyFile::from_path(&o.join(format!("{}.mvao.ply", s.name))).unwrap();
         let a = p.scalar_column("vertex", "ao").unwrap();
         assert_eq!(a.len(), s.len());
         assert!(all_in_unit(&a));
@@ -273,7 +273,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
         grid: None,
         extra: Vec::new(),
     };
-    mvao::io::las_file::write_table_las(&table, &las, false).unwrap();
+    mvao::io::las::write_table_las(&table, &las, false).unwrap();
     // Without a scanner position: a clear warning naming what is missing.
     let o0 = d.path().join("o0");
     let err = mvao_ok(&[
@@ -310,7 +310,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
         las.to_str().unwrap(),
     ]);
     let out = o.join("tls.mvao.las");
-    let ao = mvao::io::las_file::read_ao(&out).unwrap();
+    let ao = mvao::io::las::read_ao(&out).unwrap();
     assert_eq!(ao.len(), s.len());
     assert!(ao.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a)));
     // Every original dimension kept (raw integers, intensity, classification).
@@ -337,7 +337,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
         op.to_str().unwrap(),
         ply.to_str().unwrap(),
     ]);
-    let pa = mvao::io::ply::PlyFile::read_path(&op.join("tls.mvao.ply"))
+    let pa = mvao::io::ply::PlyFile::from_path(&op.join("tls.mvao.ply"))
         .unwrap()
         .scalar_column("vertex", "ao")
         .unwrap();
@@ -499,7 +499,7 @@ fn ply_colours_and_intensity_on_their_own_scale_reach_las_and_e57() {
                 assert!(pd.rgb().unwrap().all(|c| c == (w[0], w[1], w[2])), "{name}");
                 assert!(pd.intensity().all(|i| i == 32768), "{name}");
             } else {
-                let e = read_e57(&out).unwrap();
+                let e = E57Input::from_path(&out).unwrap();
                 let s = &e.scans[0];
                 assert!(s.rgb.as_ref().unwrap().iter().all(|c| *c == want), "{name}");
                 let i = s.intensity.as_ref().unwrap();

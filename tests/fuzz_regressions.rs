@@ -19,7 +19,7 @@ use fuzz_checks::{
     ply_from_structure,
 };
 use mvao::io::align::{read_alignment, read_matrix_file, split_scale};
-use mvao::io::las_file::read_las;
+use mvao::io::las::LasInput;
 use mvao::io::ply::PlyFile;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -91,7 +91,7 @@ fn ply_parse_comment_inner_cr_roundtrip() {
         b"ply\nformat ascii 1.0\ncomment a\rb\r\nobj_info c\rd\nend_header\n",
     )
     .unwrap();
-    let ply = PlyFile::read_path(&p).unwrap();
+    let ply = PlyFile::from_path(&p).unwrap();
     assert_eq!(ply.header.comments, vec!["a b"]);
     assert_eq!(ply.header.obj_info, vec!["c d"]);
 }
@@ -117,7 +117,7 @@ fn ply_parse_retain_negative_face_index() {
          0 0 0\n1 1 1\n1 -1\n1 0.5\n1 nan\n2 0 1\n1 -1\n1 1\n",
     )
     .unwrap();
-    let kept = PlyFile::read_path(&p)
+    let kept = PlyFile::from_path(&p)
         .unwrap()
         .retain_vertices(&[true, true])
         .unwrap();
@@ -240,7 +240,7 @@ fn las_parse_evlr_start_beyond_the_file() {
         b[243..247].copy_from_slice(&count.to_le_bytes());
         check_las(&[&[0u8][..], &b].concat());
         std::fs::write(&p, &b).unwrap();
-        match read_las(&p) {
+        match LasInput::from_path(&p) {
             Ok(l) => assert!(ok && l.len() == 5, "{start} {count}"),
             Err(e) => {
                 assert!(!ok, "{e}");
@@ -281,7 +281,7 @@ fn las_parse_laz_layer_sizes_are_bounded() {
     ] {
         within(Duration::from_secs(5), name, || check_las(bytes));
         std::fs::write(&p, &bytes[1..]).unwrap();
-        let e = read_las(&p).expect_err(name);
+        let e = LasInput::from_path(&p).expect_err(name);
         assert!(matches!(e, mvao::Error::Format { .. }), "{e:?}");
         assert!(e.to_string().contains("chunk table"), "{e}");
         assert!(e.to_string().contains("s.laz"), "{e}");
@@ -299,7 +299,7 @@ fn las_parse_laz_layer_sizes_are_bounded() {
         "the seed should be layered, point format {format}"
     );
     std::fs::write(&p, file).unwrap();
-    let n = read_las(&p).expect("the seed reads").len();
+    let n = LasInput::from_path(&p).expect("the seed reads").len();
     assert!(n > 0);
     let offset = u32::from_le_bytes(file[96..100].try_into().unwrap()) as usize;
     let record_len = u16::from_le_bytes(file[105..107].try_into().unwrap()) as usize;
@@ -308,7 +308,7 @@ fn las_parse_laz_layer_sizes_are_bounded() {
     b[layer0..layer0 + 4].copy_from_slice(&0xF000_0000u32.to_le_bytes());
     check_las(&[&[1u8][..], &b].concat());
     std::fs::write(&p, &b).unwrap();
-    let e = read_las(&p).expect_err("corrupt layer size");
+    let e = LasInput::from_path(&p).expect_err("corrupt layer size");
     assert!(e.to_string().contains("its layers claim"), "{e}");
     // Variable-size chunks whose table describes fewer points than the header: the decoder
     // indexed past the table's end (a panic, caught as "the decompressor failed"); the table
@@ -316,7 +316,7 @@ fn las_parse_laz_layer_sizes_are_bounded() {
     let short = include_bytes!("../fuzz/regressions/las_parse/laz-variable-chunks-short-table");
     within(Duration::from_secs(5), "short table", || check_las(short));
     std::fs::write(&p, &short[1..]).unwrap();
-    let e = read_las(&p).expect_err("short chunk table");
+    let e = LasInput::from_path(&p).expect_err("short chunk table");
     assert!(e.to_string().contains("chunk table"), "{e}");
     // Records of almost 64 KiB: a batch of 65536 of them asked for 4 GiB before decoding.
     let long = include_bytes!("../fuzz/regressions/las_parse/laz-long-records-batch-4GB");
@@ -331,13 +331,13 @@ fn las_parse_laz_layer_sizes_are_bounded() {
         check_las(sym)
     });
     std::fs::write(&p, &sym[1..]).unwrap();
-    let e = read_las(&p).expect_err("decoder assertion");
+    let e = LasInput::from_path(&p).expect_err("decoder assertion");
     assert!(matches!(e, mvao::Error::Format { .. }), "{e:?}");
     // A LASzip VLR that lists no items: the decoder's constructor panicked.
     let empty = include_bytes!("../fuzz/regressions/las_parse/laz-vlr-without-items");
     within(Duration::from_secs(5), "no items", || check_las(empty));
     std::fs::write(&p, &empty[1..]).unwrap();
-    let e = read_las(&p).expect_err("no items");
+    let e = LasInput::from_path(&p).expect_err("no items");
     assert!(e.to_string().contains("LASzip VLR"), "{e}");
     if let (Some(a), Some(b)) = (before, peak_rss()) {
         assert!(

@@ -44,14 +44,14 @@ fn double_coordinates_far_from_the_origin_are_recentred() {
     assert!(r.status.success(), "{err}");
     assert!(err.contains("re-centred"), "{err}");
 
-    let (scan, _) = mvao::io::scan_ply::read_scan(&input).unwrap();
+    let (scan, _) = mvao::io::ply::scan::read_scan(&input).unwrap();
     let o = scan.pose.w_axis.truncate();
     assert!((o - off).length() < 10.0, "offset {o}");
     // Local f32 data is small again: sub-millimetre exact.
     for (p, q) in scan.points.iter().zip(&s.points) {
         assert!((p.as_dvec3() + o - (q.as_dvec3() + off)).length() < 1e-3);
     }
-    let res = PlyFile::read_path(&out.join("geo.mvao.ply")).unwrap();
+    let res = PlyFile::from_path(&out.join("geo.mvao.ply")).unwrap();
     for (k, c) in ["x", "y", "z"].iter().enumerate() {
         assert_eq!(
             res.scalar_column("vertex", c).unwrap(),

@@ -1,10 +1,10 @@
-//! LAS/LAZ in and out: files generated here with the `las` crate go through `read_las` →
+//! LAS/LAZ in and out: files generated here with the `las` crate go through `LasInput::from_path` →
 //! `write_las` and are read back with the `las` crate, comparing raw record bytes.
 
 use glam::{DMat4, DVec3};
 use las::point::Format;
 use las::{Builder, PointDataBuilder, Reader, Transform, Vector, Vlr, Writer};
-use mvao::io::las_file::{read_ao, read_las, write_las, write_table_las};
+use mvao::io::las::{read_ao, write_las, write_table_las, LasInput};
 use mvao::io::output::{grey, ColorMode};
 use mvao::io::raw::PointTable;
 use mvao::Error;
@@ -245,7 +245,7 @@ fn round_trip(dir: &Path, spec: &Spec, mode: ColorMode, gamma: f32, out_ext: &st
     );
     let inp = dir.join(format!("{tag}.{ext}"));
     let recs = make_las(&inp, spec);
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     assert_eq!(input.len(), spec.n);
     assert_eq!(input.records(), &recs[..], "{tag}: records read exactly");
     assert_eq!(input.is_compressed(), spec.compress);
@@ -299,11 +299,11 @@ fn round_trip(dir: &Path, spec: &Spec, mode: ColorMode, gamma: f32, out_ext: &st
     assert_eq!(crs.data, WKT.as_bytes());
     if spec.evlrs {
         // The las crate reads only the first EVLR: count them in the header, read them all
-        // with read_las.
+        // with `LasInput::from_path`.
         let o = std::fs::read(&out).unwrap();
         assert_eq!(u32::from_le_bytes(o[243..247].try_into().unwrap()), 2);
         assert_eq!(h.evlrs()[0].data.len(), 100);
-        let back = read_las(&out).unwrap();
+        let back = LasInput::from_path(&out).unwrap();
         assert_eq!(back.evlrs().len(), 2, "{tag}: EVLRs kept");
         for (k, e) in back.evlrs().iter().enumerate() {
             let size = [100, 70_000][k];
@@ -375,7 +375,7 @@ fn round_trip(dir: &Path, spec: &Spec, mode: ColorMode, gamma: f32, out_ext: &st
     // The AO is found by its description.
     let back = read_ao(&out).unwrap();
     assert_eq!(back, ao);
-    let dims = read_las(&out).unwrap().extra_dims().to_vec();
+    let dims = LasInput::from_path(&out).unwrap().extra_dims().to_vec();
     assert_eq!(dims.iter().filter(|d| d.name == "ao").count(), 1);
     let ao_dim = dims.iter().find(|d| d.name == "ao").unwrap();
     assert_eq!((ao_dim.data_type, ao_dim.offset), (9, out_len - 4));
@@ -429,7 +429,7 @@ fn gamma_and_existing_extra_dims() {
         spec.undocumented = 5;
         spec.evlrs = v == (1, 4);
         let out = round_trip(dir.path(), &spec, ColorMode::Modulate, 2.2, "las");
-        let dims = read_las(&out).unwrap().extra_dims().to_vec();
+        let dims = LasInput::from_path(&out).unwrap().extra_dims().to_vec();
         let names: Vec<&str> = dims.iter().map(|d| d.name.as_str()).collect();
         // The undocumented bytes are described so 'ao' lands after them.
         assert_eq!(
@@ -459,12 +459,12 @@ fn rerun_overwrites_ao() {
     let mut spec = Spec::new((1, 4), 6);
     spec.dims = vec![dim("reflectance", 9)];
     let first = round_trip(dir.path(), &spec, ColorMode::Modulate, 1.0, "las");
-    let input = read_las(&first).unwrap();
+    let input = LasInput::from_path(&first).unwrap();
     let len = input.record_len();
     let ao2: Vec<f32> = (0..spec.n).map(|k| (k % 7) as f32 / 6.0).collect();
     let second = dir.path().join("second.las");
     write_las(&input, &ao2, 1.0, ColorMode::Keep, &second, false).unwrap();
-    let again = read_las(&second).unwrap();
+    let again = LasInput::from_path(&second).unwrap();
     assert_eq!(again.record_len(), len, "no second ao dimension");
     assert_eq!(again.point_format(), 7);
     let names: Vec<String> = again.extra_dims().iter().map(|d| d.name.clone()).collect();
@@ -498,12 +498,12 @@ fn laz_round_trips() {
         spec.evlrs = v == (1, 4);
         let out = round_trip(dir.path(), &spec, ColorMode::Modulate, 1.0, "laz");
         // LAZ → LAS too.
-        let input = read_las(&out).unwrap();
+        let input = LasInput::from_path(&out).unwrap();
         assert!(input.is_compressed());
         let plain = dir.path().join(format!("plain_{f}.las"));
         let ao = read_ao(&out).unwrap();
         write_las(&input, &ao, 1.0, ColorMode::Keep, &plain, false).unwrap();
-        let back = read_las(&plain).unwrap();
+        let back = LasInput::from_path(&plain).unwrap();
         assert!(!back.is_compressed());
         assert_eq!(back.records(), input.records());
     }
@@ -541,7 +541,7 @@ fn internal_waveform_packets_stay_addressable() {
     patch(&inp, 227, &first.to_le_bytes());
     let packets: Vec<u8> = bytes[first as usize + 60..first as usize + 160].to_vec();
 
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     let out = dir.path().join("wave.out.las");
     write_las(
         &input,
@@ -584,7 +584,7 @@ fn las13_waveform_packets_move_into_a_las14_evlr() {
     bytes[6] |= 2;
     std::fs::write(&inp, &bytes).unwrap();
 
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     assert_eq!(input.records(), &recs[..]);
     assert_eq!(input.evlrs().len(), 1);
     let out = dir.path().join("wave13.out.las");
@@ -613,7 +613,7 @@ fn legacy_counts_are_zero_for_extended_formats() {
     let inp = dir.path().join("ext.las");
     make_las(&inp, &Spec::new((1, 4), 6));
     let out = dir.path().join("ext.out.las");
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     write_las(&input, &ao_values(257), 1.0, ColorMode::Keep, &out, false).unwrap();
     let o = std::fs::read(&out).unwrap();
     assert!(o[107..131].iter().all(|&b| b == 0));
@@ -627,7 +627,7 @@ fn raw_scan_and_available_fields() {
     let mut spec = Spec::new((1, 4), 6);
     spec.dims = vec![dim("NormalX", 9), dim("NormalY", 9), dim("NormalZ", 9)];
     let recs = make_las(&inp, &spec);
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     let scan = input.raw_scan("geo");
     assert_eq!(scan.name, "geo");
     assert!(scan.pose.is_none() && scan.scanner.is_none() && scan.grid.is_none());
@@ -660,7 +660,7 @@ fn raw_scan_and_available_fields() {
     for k in 0..3u64 {
         patch(&p, off + k * 20 + 16, &[0, 0, 0, 0]);
     }
-    let z = read_las(&p).unwrap();
+    let z = LasInput::from_path(&p).unwrap();
     assert!(z.point_source_ids().is_none() && z.scan_angles().is_none());
 }
 
@@ -671,7 +671,7 @@ fn columns_for_other_formats() {
     spec.dims = vec![dim("reflectance", 9), dim("ao", 9)];
     let inp = dir.path().join("cols.las");
     let recs = make_las(&inp, &spec);
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     let len = input.record_len();
     let inten = input.intensities();
     let cols = input.extra_columns();
@@ -697,11 +697,11 @@ fn columns_for_other_formats() {
     }
     let p = dir.path().join("cols8.las");
     make_las_from(&p, &spec, small.clone());
-    let rgb = read_las(&p).unwrap().rgb8().unwrap();
+    let rgb = LasInput::from_path(&p).unwrap().rgb8().unwrap();
     for (k, r) in small.chunks_exact(len).enumerate() {
         assert_eq!(rgb[k], [r[30], r[32], r[34]]);
     }
-    assert!(read_las(&dir.path().join("cols.las"))
+    assert!(LasInput::from_path(&dir.path().join("cols.las"))
         .unwrap()
         .ao()
         .is_some());
@@ -709,7 +709,7 @@ fn columns_for_other_formats() {
     plain.n = 4;
     let q = dir.path().join("plain.las");
     make_las(&q, &plain);
-    let plain = read_las(&q).unwrap();
+    let plain = LasInput::from_path(&q).unwrap();
     assert!(plain.rgb8().is_none() && plain.ao().is_none() && plain.extra_columns().is_empty());
     assert!(read_ao(&q).is_err());
 }
@@ -723,7 +723,7 @@ fn sample(dir: &Path, spec: &Spec, name: &str) -> (PathBuf, Vec<u8>) {
 }
 
 fn expect_format_error(path: &Path, what: &str) -> String {
-    let err = read_las(path).expect_err(what);
+    let err = LasInput::from_path(path).expect_err(what);
     let msg = err.to_string();
     assert!(
         matches!(err, Error::Format { .. }),
@@ -821,7 +821,7 @@ fn corrupt_inputs_are_clear_errors() {
         expect_format_error(&bad, &format!("byte {at}"));
     }
     // The untouched file still reads.
-    assert_eq!(read_las(&p).unwrap().len(), spec.n);
+    assert_eq!(LasInput::from_path(&p).unwrap().len(), spec.n);
 }
 
 /// LAS 1.0–1.3 headers count points by return for returns 1–5 only, yet legacy records hold
@@ -839,7 +839,7 @@ fn return_numbers_above_five_move_to_las14() {
         let flags = (recs[k * STD_LEN[0] + 14] & 0xc0) | (5 + k as u8) | 7 << 3;
         patch(&inp, start + (k * STD_LEN[0] + 14) as u64, &[flags]);
     }
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     let out = dir.path().join("returns.out.las");
     write_las(
         &input,
@@ -876,7 +876,7 @@ fn random_damage_never_panics() {
     let (_, laz) = sample(dir.path(), &spec, "d.laz");
     let mut rng = Lcg(99);
     let bad = dir.path().join("damaged.bin");
-    // The LAZ decoder asserts on some corrupt streams; read_las turns that into an error
+    // The LAZ decoder asserts on some corrupt streams; `LasInput::from_path` turns that into an error
     // (the panic message still shows below).
     for round in 0..200 {
         let src = if round % 2 == 0 { &las } else { &laz };
@@ -893,7 +893,7 @@ fn random_damage_never_panics() {
         }
         std::fs::write(&bad, &b).unwrap();
         // Ok or Err, but never a panic or an abort.
-        if let Err(e) = read_las(&bad) {
+        if let Err(e) = LasInput::from_path(&bad) {
             assert!(e.to_string().contains("damaged.bin"), "{e}");
         }
     }
@@ -920,7 +920,7 @@ fn refused_writes_leave_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let inp = dir.path().join("in.las");
     make_las(&inp, &Spec::new((1, 2), 1));
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     let out = dir.path().join("out.las");
     let short = write_las(&input, &[0.5; 3], 1.0, ColorMode::Keep, &out, false);
     assert!(matches!(short, Err(Error::Param(_))));
@@ -1014,7 +1014,7 @@ fn table_output_keeps_world_coordinates() {
         let ao = read_ao(&out).unwrap();
         let want: Vec<f32> = kept.iter().map(|&k| table.ao[k]).collect();
         assert_eq!(ao, want);
-        let input = read_las(&out).unwrap();
+        let input = LasInput::from_path(&out).unwrap();
         let dims = input.extra_dims();
         let names: Vec<&str> = dims.iter().map(|d| d.name.as_str()).collect();
         assert_eq!(
@@ -1047,7 +1047,7 @@ fn empty_files_round_trip() {
     spec.n = 0;
     let inp = dir.path().join("empty.las");
     make_las(&inp, &spec);
-    let input = read_las(&inp).unwrap();
+    let input = LasInput::from_path(&inp).unwrap();
     assert!(input.is_empty());
     assert!(input.raw_scan("empty").xyz.is_empty());
     let out = dir.path().join("empty.out.las");
@@ -1063,7 +1063,7 @@ fn empty_files_round_trip() {
     };
     let t = dir.path().join("void.las");
     write_table_las(&table, &t, false).unwrap();
-    assert!(read_las(&t).unwrap().is_empty());
+    assert!(LasInput::from_path(&t).unwrap().is_empty());
 }
 
 #[test]
@@ -1160,7 +1160,7 @@ fn table_points_merged_by_the_grid_are_reported() {
         warnings[0].contains("scene.las") && warnings[0].contains("2 of 103 points"),
         "{warnings:?}"
     );
-    assert_eq!(read_las(&out).unwrap().len(), 103);
+    assert_eq!(LasInput::from_path(&out).unwrap().len(), 103);
 }
 
 /// `scripts/check_las_ao.py` reads the output with laspy (and PDAL when installed).
@@ -1261,8 +1261,8 @@ fn speed() {
     make_las_from(&inp, &spec, recs);
     println!("generate {} points: {:?}", spec.n, t.elapsed());
     let t = std::time::Instant::now();
-    let input = read_las(&inp).unwrap();
-    println!("read_las LAS: {:?}", t.elapsed());
+    let input = LasInput::from_path(&inp).unwrap();
+    println!("LasInput::from_path LAS: {:?}", t.elapsed());
     let t = std::time::Instant::now();
     let scan = input.raw_scan("big");
     println!("raw_scan: {:?} ({} points)", t.elapsed(), scan.xyz.len());
@@ -1281,8 +1281,44 @@ fn speed() {
             std::fs::metadata(&out).unwrap().len()
         );
         let t = std::time::Instant::now();
-        let back = read_las(&out).unwrap();
-        println!("read_las compress={compress}: {:?}", t.elapsed());
+        let back = LasInput::from_path(&out).unwrap();
+        println!("LasInput::from_path compress={compress}: {:?}", t.elapsed());
         assert_eq!(back.len(), spec.n);
     }
+}
+
+/// What a reader keeps of a file, apart from its name.
+fn las_content(l: &LasInput) -> impl PartialEq + std::fmt::Debug + '_ {
+    (
+        (
+            l.version(),
+            l.point_format(),
+            l.is_compressed(),
+            l.record_len(),
+        ),
+        (l.scale_offset(), l.extra_dims(), l.vlrs(), l.evlrs()),
+        l.records(),
+    )
+}
+
+#[test]
+fn reading_from_memory_equals_reading_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    for (v, f, compress) in [((1, 2), 3, false), ((1, 4), 7, false), ((1, 4), 6, true)] {
+        let mut spec = Spec::new(v, f);
+        spec.compress = compress;
+        spec.n = 70_000;
+        spec.dims = vec![dim("reflectance", 9)];
+        spec.evlrs = v == (1, 4);
+        let p = dir
+            .path()
+            .join(format!("mem_{f}.{}", if compress { "laz" } else { "las" }));
+        make_las(&p, &spec);
+        let file = LasInput::from_path(&p).unwrap();
+        let mem = LasInput::new(std::io::Cursor::new(std::fs::read(&p).unwrap())).unwrap();
+        assert_eq!(las_content(&mem), las_content(&file), "{}", p.display());
+        assert_eq!(mem.len(), spec.n);
+    }
+    let err = LasInput::new(std::io::Cursor::new(b"LASF".to_vec())).unwrap_err();
+    assert!(err.to_string().contains("truncated LAS header"), "{err}");
 }

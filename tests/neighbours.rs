@@ -4,12 +4,12 @@
 mod common;
 
 use common::*;
-use mvao::io::scan_ply;
+use mvao::io::ply::scan::read_scan;
 use mvao::scan::normals;
 use mvao::sensor::{self, ProjectionChoice};
 
 fn compare(path: &std::path::Path) -> (f32, f32) {
-    let (scan, _) = scan_ply::read_scan(path).unwrap();
+    let (scan, _) = read_scan(path).unwrap();
     let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
     let toward = |p| setup.projection.toward_sensor(p);
     let (nt, rt) = normals::estimate(&scan.points, true, toward);
@@ -55,7 +55,7 @@ fn cell_grid_neighbours_are_the_kd_trees() {
         .take(2)
         .chain(plys("3dtk-uos-3scans").iter().take(1))
     {
-        let (scan, _) = scan_ply::read_scan(p).unwrap();
+        let (scan, _) = read_scan(p).unwrap();
         let pts = &scan.points;
         assert!(pts.len() >= normals::VOXEL_MIN_POINTS, "{}", p.display());
         assert!(mvao::scan::knn::VoxelGrid::new(pts, normals::K_RADIUS).is_some());

@@ -94,7 +94,7 @@ fn reruns_reuse_products_and_crashes_resume_to_identical_outputs() {
     // A changed input recomputes only its own product.
     let r = merge(&scans, &out, &["--directions", "4"]);
     assert_eq!(products(&r), (0, 3));
-    let mut ply = mvao::io::ply::PlyFile::read_path(&scans[1]).unwrap();
+    let mut ply = mvao::io::ply::PlyFile::from_path(&scans[1]).unwrap();
     let mut x = ply.scalar_column("vertex", "x").unwrap();
     x[0] += 0.001;
     ply.set_scalar_column("vertex", "x", mvao::io::ply::ScalarType::F32, &x)

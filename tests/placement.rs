@@ -38,7 +38,7 @@ fn row_major(m: &DMat4) -> String {
 }
 
 fn ao_of(path: &Path) -> Vec<f64> {
-    PlyFile::read_path(path)
+    PlyFile::from_path(path)
         .unwrap()
         .scalar_column("vertex", "ao")
         .unwrap()
@@ -183,7 +183,7 @@ fn scaled_poses_need_allow_scale_and_then_match_metric_data() {
     let mut files = Vec::new();
     let mut aln = format!("{}\n", entries.len());
     for (p, e) in plys("3dtk-uos-3scans").iter().zip(&entries) {
-        let mut ply = PlyFile::read_path(p).unwrap();
+        let mut ply = PlyFile::from_path(p).unwrap();
         for c in ["x", "y", "z"] {
             let v: Vec<f64> = ply
                 .scalar_column("vertex", c)

@@ -73,7 +73,7 @@ fn two_blocks_round_trip() {
         table("b", poses[1], 3, 5, false),
     ];
     write_ptx(&tables, &f).unwrap();
-    let inp = read_ptx(&f).unwrap();
+    let inp = PtxInput::from_path(&f).unwrap();
     assert_eq!(inp.scans.len(), 2);
     let raw = inp.raw_scans();
     for (k, (t, s)) in tables.iter().zip(&inp.scans).enumerate() {
@@ -147,7 +147,7 @@ const HAND: &str = "2
 
 #[test]
 fn hand_written_block_pins_conventions() {
-    let inp = parse_ptx(HAND.as_bytes(), Path::new("hand.ptx")).unwrap();
+    let inp = PtxInput::from_bytes(HAND.as_bytes(), Path::new("hand.ptx")).unwrap();
     let s = &inp.scans[0];
     assert_eq!(s.name, "hand");
     assert_eq!((s.cols, s.rows), (2, 3));
@@ -168,7 +168,7 @@ fn hand_written_block_pins_conventions() {
 
     // Header and matrix that disagree (a user coordinate system at export): the matrix wins.
     let ucs = HAND.replacen("10 20 30\n0 1 0", "0 0 0\n1 0 0", 1);
-    let s = &parse_ptx(ucs.as_bytes(), Path::new("ucs.ptx"))
+    let s = &PtxInput::from_bytes(ucs.as_bytes(), Path::new("ucs.ptx"))
         .unwrap()
         .scans[0];
     assert_eq!(s.header_mismatch, 30.0);
@@ -181,7 +181,10 @@ fn hand_written_block_pins_conventions() {
     // A byte order mark before the first line is skipped.
     let bom = format!("\u{feff}{HAND}");
     assert_eq!(
-        parse_ptx(bom.as_bytes(), Path::new("b.ptx")).unwrap().scans[0].cols,
+        PtxInput::from_bytes(bom.as_bytes(), Path::new("b.ptx"))
+            .unwrap()
+            .scans[0]
+            .cols,
         2
     );
 
@@ -193,7 +196,7 @@ fn hand_written_block_pins_conventions() {
         .replace("10 20 30\n", "0.1 0.2 0.3\n")
         .replace("40 50 60", "0.4 0.5 0.6")
         .replace('\n', "\r\n");
-    let s = &parse_ptx(float.as_bytes(), Path::new("f.ptx"))
+    let s = &PtxInput::from_bytes(float.as_bytes(), Path::new("f.ptx"))
         .unwrap()
         .scans[0];
     let c = s.rgb.as_ref().unwrap();
@@ -213,7 +216,7 @@ fn hand_written_block_pins_conventions() {
             }
         })
         .collect();
-    assert!(parse_ptx(four.as_bytes(), Path::new("g.ptx"))
+    assert!(PtxInput::from_bytes(four.as_bytes(), Path::new("g.ptx"))
         .unwrap()
         .scans[0]
         .rgb
@@ -221,7 +224,7 @@ fn hand_written_block_pins_conventions() {
 }
 
 fn err(text: &str) -> String {
-    let Err(e) = parse_ptx(text.as_bytes(), Path::new("dir/scan.ptx")) else {
+    let Err(e) = PtxInput::from_bytes(text.as_bytes(), Path::new("dir/scan.ptx")) else {
         panic!("expected an error");
     };
     assert!(matches!(e, Error::Format { .. }));
@@ -295,7 +298,7 @@ fn errors_name_block_and_line() {
     assert!(err("").contains("no PTX block"));
     assert!(err("\n  \n").contains("no PTX block"));
     // A missing file is an I/O error.
-    let e = read_ptx(Path::new("/nonexistent/x.ptx")).unwrap_err();
+    let e = PtxInput::from_path(Path::new("/nonexistent/x.ptx")).unwrap_err();
     assert!(matches!(e, Error::Io { .. }));
 }
 
@@ -309,7 +312,7 @@ fn many_points_in_parallel_pieces() {
         s += &format!("{} {}.5 -{} 0.{}\n", k, k % 977, k % 13, k % 10);
     }
     let t = std::time::Instant::now();
-    let inp = parse_ptx(s.as_bytes(), Path::new("big.ptx")).unwrap();
+    let inp = PtxInput::from_bytes(s.as_bytes(), Path::new("big.ptx")).unwrap();
     eprintln!("{} MB parsed in {:?}", s.len() >> 20, t.elapsed());
     let sc = &inp.scans[0];
     assert_eq!(sc.len(), 300_000);
@@ -323,4 +326,31 @@ fn many_points_in_parallel_pieces() {
     assert_ne!(bad, s);
     let m = err(&bad);
     assert!(m.contains("block 1, line 150011: '5x9.5'"), "{m}");
+}
+
+#[test]
+fn reading_from_memory_equals_reading_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("site.ptx");
+    let tables = [
+        table(
+            "a",
+            DMat4::from_translation(DVec3::new(5.0, -1.0, 2.5)),
+            4,
+            6,
+            true,
+        ),
+        table("b", DMat4::IDENTITY, 3, 5, false),
+    ];
+    write_ptx(&tables, &f).unwrap();
+    let file = PtxInput::from_path(&f).unwrap();
+    let mut mem = PtxInput::new(std::io::Cursor::new(std::fs::read(&f).unwrap())).unwrap();
+    assert_eq!(mem.scans.len(), 2);
+    // Scans are named after the file; a stream has none. Debug output compares NaN cells too.
+    for (m, s) in mem.scans.iter_mut().zip(&file.scans) {
+        m.name.clone_from(&s.name);
+    }
+    assert_eq!(format!("{:?}", mem.scans), format!("{:?}", file.scans));
+    let err = PtxInput::new(std::io::Cursor::new(b"3\n".to_vec())).unwrap_err();
+    assert!(err.to_string().contains("(PTX stream)"), "{err}");
 }

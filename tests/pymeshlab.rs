@@ -80,7 +80,7 @@ fn s(p: &Path) -> String {
 }
 
 fn ao_of(path: &Path) -> Vec<f64> {
-    PlyFile::read_path(path)
+    PlyFile::from_path(path)
         .unwrap()
         .scalar_column("vertex", "ao")
         .unwrap()
@@ -94,8 +94,8 @@ fn check_outputs(inputs: &[PathBuf], out: &Path) -> Vec<Vec<f64>> {
         .map(|p| {
             let stem = p.file_stem().unwrap().to_str().unwrap();
             let o = out.join(format!("{stem}.pymeshlab.ply"));
-            let input = PlyFile::read_path(p).unwrap();
-            let output = PlyFile::read_path(&o).unwrap();
+            let input = PlyFile::from_path(p).unwrap();
+            let output = PlyFile::from_path(&o).unwrap();
             assert_eq!(
                 output.header.elements[0].count, input.header.elements[0].count,
                 "{stem}: vertex count"

@@ -23,8 +23,8 @@ fn run_and_check(dir: &str, extra: &[&str]) -> (tempfile::TempDir, serde_json::V
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     for p in &scans {
         let stem = p.file_stem().unwrap().to_str().unwrap();
-        let input = PlyFile::read_path(p).unwrap();
-        let output = PlyFile::read_path(&out.path().join(format!("{stem}.mvao.ply"))).unwrap();
+        let input = PlyFile::from_path(p).unwrap();
+        let output = PlyFile::from_path(&out.path().join(format!("{stem}.mvao.ply"))).unwrap();
         let n = input.header.elements[0].count;
         assert_eq!(output.header.elements[0].count, n, "{stem}: vertex count");
         // Every input property and element is kept, values unchanged.
@@ -126,7 +126,7 @@ fn bunny_merge_outputs_every_scan() {
 #[test]
 fn bunny_scans_are_orthographic_looking_along_minus_z() {
     for p in plys("stanford-bunny") {
-        let (scan, _) = mvao::io::scan_ply::read_scan(&p).unwrap();
+        let (scan, _) = mvao::io::ply::scan::read_scan(&p).unwrap();
         let setup = mvao::sensor::setup(&scan, mvao::sensor::ProjectionChoice::Auto).unwrap();
         match setup.projection.model {
             mvao::projection::Model::Ortho { toward, .. } => {
@@ -202,7 +202,7 @@ fn json_alignment_gives_the_same_result_as_mlp() {
     let (b, _) = run_and_check("3dtk-uos-3scans", &["--align", json.to_str().unwrap()]);
     for stem in ["scan000", "scan001", "scan002"] {
         let f = |d: &Path| {
-            PlyFile::read_path(&d.join(format!("{stem}.mvao.ply")))
+            PlyFile::from_path(&d.join(format!("{stem}.mvao.ply")))
                 .unwrap()
                 .scalar_column("vertex", "ao")
                 .unwrap()

@@ -669,7 +669,7 @@ fn rho_is_the_smoothstep() {
 fn real_scan_surfels_and_grid_triangles_agree() {
     let path =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/stanford-bunny/bun000.ply");
-    let (scan, _) = mvao::io::scan_ply::read_scan(&path).unwrap();
+    let (scan, _) = mvao::io::ply::scan::read_scan(&path).unwrap();
     let grid = scan.grid.as_ref().expect("bun000 has a range grid");
     // Orthographic scanner looking along −z: the sensor is towards +z.
     let (normals, radii) =

@@ -178,7 +178,7 @@ fn noisy_misregistered_scans_without_normals() {
     // Noise and estimated normals make a fifth to a quarter of the rays meet their own surface.
     assert_checks_pass(&checks, 0.35, "vault noisy 0.4");
     // Every reference file carries the per-point count of rays that met their own surface.
-    let ply = mvao::io::ply::PlyFile::read_path(&accuracy::reference_path(
+    let ply = mvao::io::ply::PlyFile::from_path(&accuracy::reference_path(
         &dir.path().join("ref"),
         "station_000",
     ))

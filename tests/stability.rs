@@ -1380,7 +1380,7 @@ fn nan_inf_coordinates_and_normals() {
         let v = s[k].as_f64().unwrap_or(f64::NAN);
         assert!(v.is_finite() && (0.0..=1.0).contains(&v), "{k} = {v}");
     }
-    let res = PlyFile::read_path(&out.join("holes.mvao.ply")).unwrap();
+    let res = PlyFile::from_path(&out.join("holes.mvao.ply")).unwrap();
     let ao = res.scalar_column("vertex", "ao").unwrap();
     assert_eq!(ao.len(), n - bad_xyz.len());
     assert!(ao.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a)));

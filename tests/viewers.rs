@@ -57,7 +57,7 @@ fn results(dir: &Path) -> Vec<PathBuf> {
 }
 
 fn ao_of(path: &Path) -> Vec<f64> {
-    PlyFile::read_path(path)
+    PlyFile::from_path(path)
         .unwrap()
         .scalar_column("vertex", "ao")
         .unwrap()

@@ -185,7 +185,7 @@ fn synthetic_view_round_trips_bit_for_bit() {
 fn bunny_scan_round_trips_bit_for_bit() {
     // A real Cyberware scan: native grid fitted by the orthographic model.
     let (scan, _) =
-        mvao::io::scan_ply::read_scan(&common::fixture("stanford-bunny/bun045.ply")).unwrap();
+        mvao::io::ply::scan::read_scan(&common::fixture("stanford-bunny/bun045.ply")).unwrap();
     let v = prepare_view(&scan, ProjectionChoice::Auto, &params(3)).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let input = common::fixture("stanford-bunny/bun045.ply");

@@ -10,8 +10,8 @@
 
 use glam::{DMat3, DMat4, DVec4};
 use mvao::io::align::{check_rigid, match_scans, poses_for_scans, read_alignment};
+use mvao::io::ply::scan::scan_from_ply;
 use mvao::io::ply::{ElementData, ElementDef, Encoding, PlyFile, PropertyKind, ScalarType};
-use mvao::io::scan_ply::scan_from_ply;
 use mvao::Error;
 use std::path::{Path, PathBuf};
 
@@ -71,7 +71,7 @@ pub fn check_ply(bytes: &[u8]) {
     let scratch = Scratch::new("ply");
     let path = scratch.file("input.ply");
     std::fs::write(&path, bytes).expect("write scratch input");
-    let ply = match PlyFile::read_path(&path) {
+    let ply = match PlyFile::from_path(&path) {
         Ok(p) => p,
         Err(e) => {
             assert!(
@@ -369,7 +369,7 @@ fn writable_name(name: &str) -> bool {
     !name.is_empty() && !name.chars().any(|c| c.is_whitespace() || c.is_control())
 }
 
-/// `write_path` then `read_path` must give back the same header (but the encoding) and data.
+/// `write_path` then `from_path` must give back the same header (but the encoding) and data.
 fn roundtrip(ply: &PlyFile, scratch: &Scratch, what: &str) {
     let writable = ply
         .header
@@ -385,7 +385,7 @@ fn roundtrip(ply: &PlyFile, scratch: &Scratch, what: &str) {
             return;
         }
     }
-    let back = PlyFile::read_path(&out)
+    let back = PlyFile::from_path(&out)
         .unwrap_or_else(|e| panic!("{what}: the written file does not read back: {e}"));
     assert_eq!(back.header.encoding, Encoding::BinaryLe);
     assert_eq!(

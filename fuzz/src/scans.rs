@@ -11,10 +11,10 @@
 use super::{assert_rigid, Scratch};
 use glam::{DMat3, DVec4};
 use mvao::io::align::{read_matrix_file, split_scale};
-use mvao::io::e57_file::read_e57;
-use mvao::io::las_file::read_las;
+use mvao::io::e57::E57Input;
+use mvao::io::las::LasInput;
 use mvao::io::output::ColorMode;
-use mvao::io::ptx::{read_ptx, write_ptx};
+use mvao::io::ptx::{write_ptx, PtxInput};
 use mvao::io::source::{read_input, InputFile};
 use mvao::scan::NO_CELL;
 use mvao::Error;
@@ -96,7 +96,7 @@ pub fn check_ptx(bytes: &[u8]) {
     let path = scratch.file("input.ptx");
     std::fs::write(&path, bytes).expect("write scratch input");
     let via_input = read_checked(&path).is_some();
-    let ptx = match read_ptx(&path) {
+    let ptx = match PtxInput::from_path(&path) {
         Ok(p) => p,
         Err(e) => {
             assert_names_file(&e, &path);
@@ -128,7 +128,7 @@ pub fn check_ptx(bytes: &[u8]) {
     }
     let out = scratch.file("back.ptx");
     write_ptx(&tables, &out).expect("write_ptx of a file as read");
-    let back = read_ptx(&out).expect("read_ptx of a written file");
+    let back = PtxInput::from_path(&out).expect("reading a written PTX file");
     assert_eq!(back.scans.len(), ptx.scans.len());
     for (a, b) in ptx.scans.iter().zip(&back.scans) {
         assert_eq!((a.cols, a.rows), (b.cols, b.rows));
@@ -165,7 +165,7 @@ pub fn check_las(data: &[u8]) {
     let path = scratch.file(&format!("input.{ext}"));
     std::fs::write(&path, bytes).expect("write scratch input");
     read_checked(&path);
-    let las = match read_las(&path) {
+    let las = match LasInput::from_path(&path) {
         Ok(l) => l,
         Err(e) => {
             assert_names_file(&e, &path);
@@ -233,7 +233,7 @@ pub fn check_e57(data: &[u8]) {
     let path = scratch.file("input.e57");
     std::fs::write(&path, e57_with_checksums(data)).expect("write scratch input");
     read_checked(&path);
-    let e = match read_e57(&path) {
+    let e = match E57Input::from_path(&path) {
         Ok(e) => e,
         Err(err) => {
             assert_names_file(&err, &path);

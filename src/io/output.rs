@@ -275,7 +275,7 @@ mod tests {
         let get = |mode: ColorMode| {
             let p = dir.path().join(format!("{mode:?}.ply"));
             write_result_ply(&ply, &ao, 1.0, mode, "test", &p).unwrap();
-            let o = PlyFile::read_path(&p).unwrap();
+            let o = PlyFile::from_path(&p).unwrap();
             for name in ["ao", CLOUDCOMPARE_AO, MESHLAB_AO] {
                 assert_eq!(o.scalar_column("vertex", name).unwrap(), vec![0.5, 1.0]);
             }
@@ -297,7 +297,7 @@ mod tests {
         .unwrap();
         let p = dir.path().join("bare.ply");
         write_result_ply(&bare, &ao, 2.0, ColorMode::Keep, "test", &p).unwrap();
-        let o = PlyFile::read_path(&p).unwrap();
+        let o = PlyFile::from_path(&p).unwrap();
         // gamma 2: 0.5^(1/2) = 0.7071 → 180
         assert_eq!(
             o.scalar_column("vertex", "green").unwrap(),
@@ -329,7 +329,7 @@ mod tests {
         let run = |ply: &PlyFile, mode: ColorMode, name: &str| {
             let p = dir.path().join(name);
             write_result_ply(ply, &ao, 1.0, mode, "test", &p).unwrap();
-            PlyFile::read_path(&p).unwrap()
+            PlyFile::from_path(&p).unwrap()
         };
         let o = run(
             &cols(&[("ao", ScalarType::U8, &[3.0, 7.0])]),
@@ -404,7 +404,7 @@ mod tests {
         let notes = write_result_ply(&own, &ao, 1.0, ColorMode::Keep, "t", &p).unwrap();
         assert_eq!(notes.len(), 1, "{notes:?}");
         assert!(notes[0].contains("own.ply") && notes[0].contains("quality"));
-        let o = PlyFile::read_path(&p).unwrap();
+        let o = PlyFile::from_path(&p).unwrap();
         assert_eq!(
             o.scalar_column("vertex", "quality").unwrap(),
             vec![7.0, 9.0]
@@ -417,7 +417,7 @@ mod tests {
         let q = dir.path().join("again.ply");
         let notes = write_result_ply(&o, &[0.5, 0.5], 1.0, ColorMode::Keep, "t", &q).unwrap();
         assert_eq!(notes.len(), 1);
-        let o2 = PlyFile::read_path(&q).unwrap();
+        let o2 = PlyFile::from_path(&q).unwrap();
         assert_eq!(
             o2.scalar_column("vertex", "quality").unwrap(),
             vec![7.0, 9.0]
@@ -437,14 +437,14 @@ mod tests {
         assert!(write_result_ply(&bare, &ao, 1.0, ColorMode::Keep, "t", &r1)
             .unwrap()
             .is_empty());
-        let first = PlyFile::read_path(&r1).unwrap();
+        let first = PlyFile::from_path(&r1).unwrap();
         let r2 = dir.path().join("r2.ply");
         assert!(
             write_result_ply(&first, &[1.0, 0.0], 1.0, ColorMode::Keep, "t", &r2)
                 .unwrap()
                 .is_empty()
         );
-        let second = PlyFile::read_path(&r2).unwrap();
+        let second = PlyFile::from_path(&r2).unwrap();
         let ei = second.element("vertex").unwrap();
         let names: Vec<&str> = second.header.elements[ei]
             .props

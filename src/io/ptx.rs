@@ -17,7 +17,7 @@
 //! parses them in parallel with an exact fast path for plain decimals.
 
 use super::atomic::write_atomic;
-use super::e57_file::result_colours;
+use super::e57::result_colours;
 use super::output::ColorMode;
 use super::raw::{PointTable, RawGrid, RawScan};
 use crate::error::{Error, Result};
@@ -148,18 +148,39 @@ impl PtxInput {
     }
 }
 
-/// Reads a PTX file (see the module documentation).
-///
-/// Errors name the file, the block (from 1) and the line: a header line that is not what it
-/// should be, a point line with a bad number or a wrong number of values, a block with
-/// another number of points than `columns × rows` says, a truncated file.
-pub fn read_ptx(path: &Path) -> Result<PtxInput> {
-    let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse_ptx(&data, path)
+/// The name errors and scans take when PTX is read from a stream rather than a file.
+const STREAM: &str = "(PTX stream)";
+
+impl PtxInput {
+    /// Reads a PTX file (see the module documentation).
+    ///
+    /// Errors name the file, the block (from 1) and the line: a header line that is not what it
+    /// should be, a point line with a bad number or a wrong number of values, a block with
+    /// another number of points than `columns × rows` says, a truncated file.
+    pub fn from_path(path: &Path) -> Result<PtxInput> {
+        let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Self::from_bytes(&data, path)
+    }
+
+    /// Reads PTX from any stream, as [`PtxInput::from_path`] reads a file; errors name the
+    /// input `(PTX stream)`. The blocks are parsed in parallel from memory, so the stream is
+    /// read whole first.
+    pub fn new<R: std::io::Read>(mut reader: R) -> Result<PtxInput> {
+        let path = Path::new(STREAM);
+        let mut data = Vec::new();
+        reader
+            .read_to_end(&mut data)
+            .map_err(|e| Error::io(path, e))?;
+        Self::from_bytes(&data, path)
+    }
+
+    /// Parses PTX bytes already in memory; `path` names them in messages and scan names.
+    pub fn from_bytes(data: &[u8], path: &Path) -> Result<PtxInput> {
+        parse_ptx(data, path)
+    }
 }
 
-/// Parses PTX bytes already in memory; `path` names them in messages and scan names.
-pub fn parse_ptx(data: &[u8], path: &Path) -> Result<PtxInput> {
+fn parse_ptx(data: &[u8], path: &Path) -> Result<PtxInput> {
     let stem = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -303,13 +324,26 @@ enum LineError {
     Colour(f64),
 }
 
-/// Parses one block starting at the cursor; `prev` is the previous block's (cols, rows).
-fn parse_block(
+/// The ten header lines of a block.
+struct BlockHeader {
+    cols: u32,
+    rows: u32,
+    /// Line number of the first header line.
+    header_line: usize,
+    /// Scanner position and x, y, z axes.
+    three: [DVec3; 4],
+    pose: DMat4,
+    header_mismatch: f64,
+}
+
+/// Reads block `b`'s header; `prev` is the previous block's size, to recognise a block that
+/// holds more points than it declares.
+fn parse_header(
     cur: &mut Cursor,
     b: usize,
     prev: Option<(u32, u32)>,
     path: &Path,
-) -> Result<PtxScan> {
+) -> Result<BlockHeader> {
     let err =
         |line: usize, msg: String| Error::format(path, format!("block {b}, line {line}: {msg}"));
     let truncated = |what: &str| {
@@ -379,6 +413,33 @@ fn parse_block(
     ]
     .into_iter()
     .fold(0.0, f64::max);
+    Ok(BlockHeader {
+        cols,
+        rows,
+        header_line,
+        three,
+        pose,
+        header_mismatch,
+    })
+}
+
+/// Parses one block starting at the cursor; `prev` is the previous block's (cols, rows).
+fn parse_block(
+    cur: &mut Cursor,
+    b: usize,
+    prev: Option<(u32, u32)>,
+    path: &Path,
+) -> Result<PtxScan> {
+    let err =
+        |line: usize, msg: String| Error::format(path, format!("block {b}, line {line}: {msg}"));
+    let BlockHeader {
+        cols,
+        rows,
+        header_line,
+        three,
+        pose,
+        header_mismatch,
+    } = parse_header(cur, b, prev, path)?;
 
     let n = cols as u64 * rows as u64;
     let declared = format!("block {b} declares {cols} × {rows} = {n} points");

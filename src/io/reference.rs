@@ -73,7 +73,7 @@ pub fn write_reference_ply(
 
 /// Reads the `ao` column of a PLY file (a result or a reference).
 pub fn read_ao(path: &Path) -> Result<Vec<f32>> {
-    let ply = PlyFile::read_path(path)?;
+    let ply = PlyFile::from_path(path)?;
     let v = ply
         .scalar_column("vertex", "ao")
         .ok_or_else(|| Error::format(path, "has no per-vertex 'ao' property"))?;

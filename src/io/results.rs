@@ -183,7 +183,7 @@ pub fn write(
                     .iter()
                     .map(|&i| per_record(ds, i, &ao[i]))
                     .collect();
-                super::e57_file::write_e57(e, &per_record, opts.gamma, opts.color, &unit.path)
+                super::e57::write_e57(e, &per_record, opts.gamma, opts.color, &unit.path)
             }
             Container::Ptx(_) => Err(Error::Param(format!(
                 "{}: PTX is read, not written",
@@ -191,7 +191,7 @@ pub fn write(
             ))),
             Container::Las(l) => {
                 let i = unit.scans[0];
-                super::las_file::write_las(
+                super::las::write_las(
                     l,
                     &per_record(ds, i, &ao[i]),
                     opts.gamma,
@@ -210,11 +210,9 @@ pub fn write(
             .collect::<Result<_>>()?;
         match unit.format {
             Format::Ply => write_table_ply(&tables[0], comment, &unit.path),
-            Format::E57 => {
-                super::e57_file::write_table_e57(&tables, &unit.path).map(|()| Vec::new())
-            }
+            Format::E57 => super::e57::write_table_e57(&tables, &unit.path).map(|()| Vec::new()),
             Format::Las | Format::Laz => {
-                super::las_file::write_table_las(&tables[0], &unit.path, unit.format == Format::Laz)
+                super::las::write_table_las(&tables[0], &unit.path, unit.format == Format::Laz)
             }
             Format::Ptx => Err(Error::Param(format!(
                 "{}: PTX is read, not written",

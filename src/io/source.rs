@@ -92,11 +92,11 @@ pub enum Container {
     /// A PLY file.
     Ply(Box<PlyFile>),
     /// An E57 file.
-    E57(Box<super::e57_file::E57Input>),
+    E57(Box<super::e57::E57Input>),
     /// A PTX file.
     Ptx(Box<super::ptx::PtxInput>),
     /// A LAS or LAZ file.
-    Las(Box<super::las_file::LasInput>),
+    Las(Box<super::las::LasInput>),
 }
 
 impl Container {
@@ -131,7 +131,7 @@ impl Container {
                     s.descriptor
                         .prototype
                         .iter()
-                        .map(|r| super::e57_file::record_label(&r.name))
+                        .map(|r| super::e57::record_label(&r.name))
                         .collect()
                 })
                 .unwrap_or_default(),
@@ -189,8 +189,8 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
         .unwrap_or_else(|| path.display().to_string());
     match format {
         Format::Ply => {
-            let (ply, warnings) = PlyFile::read_path_warn(path)?;
-            let raw = super::scan_ply::raw_from_ply(&ply, path, &stem)?;
+            let (ply, warnings) = PlyFile::from_path_warn(path)?;
+            let raw = super::ply::scan::raw_from_ply(&ply, path, &stem)?;
             let (scan, off) = scan_from_raw(raw, path)?;
             Ok(InputFile {
                 path: path.to_path_buf(),
@@ -202,7 +202,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
             })
         }
         Format::Las | Format::Laz => {
-            let l = super::las_file::read_las(path)?;
+            let l = super::las::LasInput::from_path(path)?;
             let (scan, off) = scan_from_raw(l.raw_scan(&stem), path)?;
             Ok(InputFile {
                 path: path.to_path_buf(),
@@ -214,7 +214,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
             })
         }
         Format::E57 => {
-            let e = super::e57_file::read_e57(path)?;
+            let e = super::e57::E57Input::from_path(path)?;
             let (scans, offs) = scans_of(e.raw_scans(), path)?;
             Ok(InputFile {
                 path: path.to_path_buf(),
@@ -226,7 +226,7 @@ pub fn read_input(path: &Path) -> Result<InputFile> {
             })
         }
         Format::Ptx => {
-            let p = super::ptx::read_ptx(path)?;
+            let p = super::ptx::PtxInput::from_path(path)?;
             let (scans, offs) = scans_of(p.raw_scans(), path)?;
             Ok(InputFile {
                 path: path.to_path_buf(),

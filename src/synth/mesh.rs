@@ -156,7 +156,7 @@ impl Mesh {
 }
 
 fn read_ply(path: &Path) -> Result<(Vec<DVec3>, Vec<Vec<u32>>)> {
-    let ply = PlyFile::read_path(path)?;
+    let ply = PlyFile::from_path(path)?;
     let xyz = ply
         .vertex_xyz()
         .ok_or_else(|| Error::format(path, "has no vertex x y z"))?;

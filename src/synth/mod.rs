@@ -587,7 +587,7 @@ mod tests {
         let al = crate::io::align::read_alignment(&sum.alignment).unwrap();
         let (pos, _) = MeshKind::Vault.stations();
         for (i, f) in sum.files.iter().enumerate() {
-            let ply = crate::io::ply::PlyFile::read_path(&f.path).unwrap();
+            let ply = crate::io::ply::PlyFile::from_path(&f.path).unwrap();
             assert!(ply.scalar_column("vertex", "nx").is_none());
             let a = crate::io::reference::read_ao(
                 &dir.path()
@@ -652,7 +652,7 @@ mod tests {
             );
             assert!(head.contains("format binary_little_endian"));
             assert!(head.contains("sensor perspective 64x48"));
-            let ply = crate::io::ply::PlyFile::read_path(&f.path).unwrap();
+            let ply = crate::io::ply::PlyFile::from_path(&f.path).unwrap();
             for c in ["x", "y", "z", "nx", "ny", "nz", "row", "col"] {
                 let v = ply.scalar_column("vertex", c).unwrap();
                 assert_eq!(v.len(), f.points, "{c}");

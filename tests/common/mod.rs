@@ -3,7 +3,8 @@
 
 use glam::{DVec3, Vec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use mvao::io::{align, scan_ply};
+use mvao::io::align;
+use mvao::io::ply::scan::read_scan;
 use mvao::scan::Scan;
 use std::path::{Path, PathBuf};
 
@@ -33,7 +34,7 @@ pub fn load_aligned(paths: &[PathBuf], align_file: &Path) -> Vec<Scan> {
         .iter()
         .zip(poses)
         .map(|(p, m)| {
-            let (mut s, _) = scan_ply::read_scan(p).unwrap();
+            let (mut s, _) = read_scan(p).unwrap();
             s.pose = m * s.pose;
             s
         })

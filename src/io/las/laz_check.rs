@@ -10,14 +10,17 @@
 
 use std::path::Path;
 
-use crate::error::{Error, Result};
+#[cfg(feature = "laz")]
+use crate::error::Error;
+use crate::error::Result;
 
 /// Checks the chunk table (layered compression or variable-size chunks) and, for layered
 /// compression, every chunk's layer sizes.
 /// `laszip_vlr` is the payload of the LASzip VLR; `offset` is the offset to point data and
 /// `count` the header's point count.
 #[cfg(feature = "laz")]
-pub(crate) fn check_layers(
+pub(crate) fn check_layers<R: std::io::Read + std::io::Seek>(
+    f: &mut R,
     path: &Path,
     file_len: u64,
     offset: u64,
@@ -25,8 +28,7 @@ pub(crate) fn check_layers(
     laszip_vlr: &[u8],
 ) -> Result<()> {
     use laz::laszip::{ChunkTable, LazItemType, LazVlr};
-    use std::fs::File;
-    use std::io::{BufReader, Read, Seek, SeekFrom};
+    use std::io::SeekFrom;
 
     let bad = |m: String| Error::format(path, m);
     let vlr = LazVlr::from_buffer(laszip_vlr).map_err(|e| bad(format!("bad LASzip VLR: {e}")))?;
@@ -75,10 +77,9 @@ pub(crate) fn check_layers(
         1
     };
 
-    let mut f = BufReader::new(File::open(path).map_err(|e| Error::io(path, e))?);
     f.seek(SeekFrom::Start(offset))
         .map_err(|e| Error::io(path, e))?;
-    let table_at = read_table_offset(&mut f, offset, file_len)
+    let table_at = read_table_offset(f, offset, file_len)
         .ok_or_else(|| bad("LAZ without a readable chunk table".into()))?;
     // The chunk count is plain bytes before the coded entries; bound it before the table
     // reader reserves memory for it.
@@ -96,7 +97,7 @@ pub(crate) fn check_layers(
     }
     f.seek(SeekFrom::Start(offset))
         .map_err(|e| Error::io(path, e))?;
-    let table = ChunkTable::read_from(&mut f, &vlr)
+    let table = ChunkTable::read_from(&mut *f, &vlr)
         .map_err(|e| bad(format!("corrupt LAZ chunk table: {e}")))?;
 
     // The decoder reads chunk after chunk whatever the table says: a chunk the table does not
@@ -161,6 +162,6 @@ fn read_table_offset<R: std::io::Read + std::io::Seek>(
 
 /// Without LAZ support compressed files are refused before any check is needed.
 #[cfg(not(feature = "laz"))]
-pub(crate) fn check_layers(_: &Path, _: u64, _: u64, _: u64, _: &[u8]) -> Result<()> {
+pub(crate) fn check_layers<R>(_: &mut R, _: &Path, _: u64, _: u64, _: u64, _: &[u8]) -> Result<()> {
     Ok(())
 }

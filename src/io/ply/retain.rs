@@ -3,7 +3,7 @@
 //! (`vertex_indices`, `vertex_index`) are renumbered; a face that loses a vertex is dropped,
 //! any other list just loses the reference (a `range_grid` cell becomes empty).
 
-use super::ply::{ElementData, PlyFile, PropertyKind, ScalarType};
+use super::{ElementData, PlyFile, PropertyKind, ScalarType};
 use crate::error::{Error, Result};
 
 fn size(t: ScalarType) -> usize {

@@ -4,10 +4,10 @@
 //! A grid's bad references are dropped with a warning; a grid mostly bad, or whose declared
 //! size does not match, is ignored with a warning.
 
-use super::ply::PlyFile;
-use super::raw::{RawGrid, RawScan};
-use super::source::{GRID_IGNORED, MAX_GRID_DEFECTS};
+use super::PlyFile;
 use crate::error::{Error, Result};
+use crate::io::raw::{RawGrid, RawScan};
+use crate::io::source::{GRID_IGNORED, MAX_GRID_DEFECTS};
 use crate::projection::SensorModel;
 use crate::scan::{Scan, NO_CELL};
 use glam::Vec3;
@@ -24,7 +24,7 @@ const ROW_COL_NAMES: [(&str, &str); 3] = [
 /// Reads `path` as a scan (identity pose) and returns it with the parsed file, which the
 /// writer reuses so every input property is kept.
 pub fn read_scan(path: &Path) -> Result<(Scan, PlyFile)> {
-    let ply = PlyFile::read_path(path)?;
+    let ply = PlyFile::from_path(path)?;
     let scan = scan_from_ply(&ply, path)?;
     Ok((scan, ply))
 }
@@ -35,7 +35,7 @@ pub fn scan_from_ply(ply: &PlyFile, path: &Path) -> Result<Scan> {
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| path.display().to_string());
-    Ok(super::source::scan_from_raw(raw_from_ply(ply, path, &stem)?, path)?.0)
+    Ok(crate::io::source::scan_from_raw(raw_from_ply(ply, path, &stem)?, path)?.0)
 }
 
 /// What a PLY file holds of a scan: coordinates, normals when all three components are
@@ -69,7 +69,7 @@ pub fn raw_from_ply(ply: &PlyFile, path: &Path, name: &str) -> Result<RawScan> {
     })
 }
 
-pub use super::source::RECENTRE_ABOVE;
+pub use crate::io::source::RECENTRE_ABOVE;
 
 /// A `comment sensor <equirect|perspective|ortho> …` line declares the sensor model.
 fn sensor_hint(ply: &PlyFile) -> Option<SensorModel> {
