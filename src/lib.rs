@@ -61,6 +61,7 @@ pub mod projection;
 pub mod radius;
 pub mod reference;
 pub mod report;
+pub mod rng;
 pub mod scan;
 pub mod sensor;
 pub mod site;

@@ -4,7 +4,8 @@
 pub mod blur;
 pub mod horizon;
 pub mod paper;
-pub mod rng;
+
+pub use crate::rng;
 
 use crate::gbuffer::GBuffer;
 use crate::projection::Projection;
