@@ -41,8 +41,6 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod accuracy;
-pub mod cli;
-pub mod commands;
 pub mod config;
 pub mod error;
 pub mod eval;

@@ -1,18 +1,18 @@
 //! Command-line flags (what the user typed) and their check into a [`Config`]. Opens no files.
 
-use crate::accuracy::{Geometry, RefConfig};
-use crate::config::{ComputeParams, Config};
-use crate::io::dataset::{PlaceOptions, PoseOverride};
-use crate::io::output::ColorMode;
-use crate::io::source::Format;
-use crate::preview::{PreviewStyle, Tone, Up};
-use crate::projection::SensorModel;
-use crate::reference::RefParams;
-use crate::sensor::ProjectionChoice;
-use crate::ssao::Estimator;
-use crate::synth::{MeshKind, MeshSource, Registration, SceneKind, SynthOptions};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use glam::DVec3;
+use mvao::accuracy::{Geometry, RefConfig};
+use mvao::config::{ComputeParams, Config};
+use mvao::io::dataset::{PlaceOptions, PoseOverride};
+use mvao::io::output::ColorMode;
+use mvao::io::source::Format;
+use mvao::preview::{PreviewStyle, Tone, Up};
+use mvao::projection::SensorModel;
+use mvao::reference::RefParams;
+use mvao::sensor::ProjectionChoice;
+use mvao::ssao::Estimator;
+use mvao::synth::{MeshKind, MeshSource, Registration, SceneKind, SynthOptions};
 use std::path::PathBuf;
 
 /// mvao — multi-view ambient occlusion for raw aligned 3D scans.
