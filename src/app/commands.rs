@@ -1,6 +1,7 @@
 //! One function per subcommand: build the configuration from the flags, run the library,
 //! print the summary. The binary only parses flags and prints the error chain.
 
+use super::bars::Bars;
 use super::cli::{Command, EvalArgs, PlotArgs, SweepArgs};
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -13,7 +14,10 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
         Command::Merge(args) => {
             let quiet = args.quiet;
             let cfg = args.into_config().map_err(anyhow::Error::msg)?;
-            let report = mvao::pipeline::run(&cfg)?;
+            let report = mvao::pipeline::run(&cfg, &Bars::new(quiet))?;
+            if let (true, Some(plan)) = (cfg.dry_run, &report.plan) {
+                println!("{}", plan.to_text());
+            }
             if !quiet && !cfg.dry_run {
                 eprintln!(
                     "{} scans, {} points in {:.2} s; {} without SSAO sample, {} with zero merge weight; results in {}",
@@ -31,7 +35,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             let quiet = args.quiet;
             let mut cfg = args.into_config().map_err(anyhow::Error::msg)?;
             cfg.prepare_only = true;
-            let report = mvao::pipeline::run(&cfg)?;
+            let report = mvao::pipeline::run(&cfg, &Bars::new(quiet))?;
             if !quiet {
                 eprintln!(
                     "products in {}; {:.2} s",

@@ -2,5 +2,6 @@
 //! library computes and reports through its progress observer; only this module talks to the
 //! terminal.
 
+pub mod bars;
 pub mod cli;
 pub mod commands;
