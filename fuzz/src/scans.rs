@@ -16,7 +16,7 @@ use mvao::io::las_file::read_las;
 use mvao::io::output::ColorMode;
 use mvao::io::ptx::{read_ptx, write_ptx};
 use mvao::io::source::{read_input, InputFile};
-use mvao::scan::NO_CELL;
+use mvao::testing::scan::NO_CELL;
 use mvao::Error;
 use std::path::Path;
 

@@ -7,12 +7,12 @@ use mvao::config::{ComputeParams, Config};
 use mvao::io::dataset::{PlaceOptions, PoseOverride};
 use mvao::io::output::ColorMode;
 use mvao::io::source::Format;
-use mvao::preview::{PreviewStyle, Tone, Up};
-use mvao::projection::SensorModel;
-use mvao::reference::RefParams;
-use mvao::sensor::ProjectionChoice;
-use mvao::ssao::Estimator;
 use mvao::synth::{MeshKind, MeshSource, Registration, SceneKind, SynthOptions};
+use mvao::Estimator;
+use mvao::ProjectionChoice;
+use mvao::RefParams;
+use mvao::SensorModel;
+use mvao::{PreviewStyle, Tone, Up};
 use std::path::PathBuf;
 
 /// mvao — multi-view ambient occlusion for raw aligned 3D scans.

@@ -94,7 +94,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
                         c.open,
                         c.sample,
                         c.darkened,
-                        mvao::reference::OPEN_MIN_A,
+                        mvao::OPEN_MIN_A,
                         c.min_open_a,
                         100.0 * c.mean_self_hit_share
                     );
@@ -189,9 +189,9 @@ fn sweep(args: SweepArgs) -> anyhow::Result<()> {
         grid.retain(|s| {
             matches!(
                 (s.estimator, s.samples, s.directions, s.steps),
-                (mvao::ssao::Estimator::Paper, 16 | 32, _, _)
-                    | (mvao::ssao::Estimator::Horizon, _, 4, 4)
-                    | (mvao::ssao::Estimator::Horizon, _, 8, 8)
+                (mvao::Estimator::Paper, 16 | 32, _, _)
+                    | (mvao::Estimator::Horizon, _, 4, 4)
+                    | (mvao::Estimator::Horizon, _, 8, 8)
             )
         });
         for s in &mut grid {

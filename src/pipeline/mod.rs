@@ -5,11 +5,11 @@
 //! cache for `mvao merge` and `mvao prepare` ([`run`]), memory for library use and the
 //! tests ([`compute`]). The stages have no math of their own.
 
-pub mod catalog;
-pub mod merge;
-pub mod plan;
-pub mod prepare;
-pub mod write;
+pub(crate) mod catalog;
+pub(crate) mod merge;
+pub(crate) mod plan;
+pub(crate) mod prepare;
+pub(crate) mod write;
 
 /// Kept for `mvao info`, which still names it here; it lives in [`crate::site`].
 pub use crate::site::world_bounds;

@@ -5,7 +5,7 @@ pub mod blur;
 pub mod horizon;
 pub mod paper;
 
-pub use crate::rng;
+pub(crate) use crate::rng;
 
 use crate::gbuffer::GBuffer;
 use crate::projection::Projection;
