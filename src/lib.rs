@@ -39,6 +39,11 @@
 //! # Ok::<(), mvao::Error>(())
 //! ```
 #![deny(missing_docs)]
+// Library code returns errors: a panic would take the caller's process down.
+#![cfg_attr(
+    not(test),
+    deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
+)]
 // Guards are written `!(x > 0.0)` on purpose: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 

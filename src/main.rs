@@ -1,6 +1,11 @@
 //! The `mvao` binary: parse flags, run one command, print the error chain once, exit non-zero
 //! on failure.
 
+#![cfg_attr(
+    not(test),
+    deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
+)]
+
 mod app;
 
 use app::cli::Cli;
