@@ -326,7 +326,7 @@ mod tests {
 
     #[test]
     fn packed_keys_give_the_cells_and_runs_of_the_cells_themselves() {
-        let mut rng = crate::ssao::rng::Rng::new(7, 0);
+        let mut rng = crate::rng::Rng::new(7, 0);
         let (mut packed, mut fell_back) = (0, 0);
         for case in 0..40 {
             // Clouds along a line (long runs) or scattered, georeferenced or not, some with
