@@ -53,7 +53,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             if args.json {
                 println!("{}", serde_json::to_string_pretty(&info)?);
             } else {
-                print!("{}", info.to_text());
+                print!("{}", super::info::text(&info));
             }
             info.status()?;
             Ok(())

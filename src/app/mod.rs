@@ -5,3 +5,4 @@
 pub mod bars;
 pub mod cli;
 pub mod commands;
+pub mod info;
