@@ -90,6 +90,8 @@ pub use ssao::Estimator;
 /// API and free to change. Each module keeps its inner paths (`testing::scan::knn::…`).
 #[doc(hidden)]
 pub mod testing {
+    // A crate-private module cannot itself be re-exported, so each is mirrored by a module
+    // re-exporting its public items (nested public modules included).
     pub mod eval {
         pub use crate::eval::*;
     }
