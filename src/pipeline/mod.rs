@@ -1,7 +1,7 @@
-//! The stages of a run, in order: [`catalog`] (every input read once) → [`plan`] (parameters,
-//! pairs, memory) → [`prepare`] (per scan: sensor model, normals, G-buffer, SSAO, border) →
-//! [`merge`] (each scan against the views that may share its surface) → [`write`] (outputs
-//! and the report). They run over a [`ViewStore`]: the work directory with its budgeted
+//! The stages of a run, in order: `catalog` (every input read once) → `plan` (parameters,
+//! pairs, memory) → `prepare` (per scan: sensor model, normals, G-buffer, SSAO, border) →
+//! `merge` (each scan against the views that may share its surface) → `write` (outputs
+//! and the report). They run over a `ViewStore`: the work directory with its budgeted
 //! cache for `mvao merge` and `mvao prepare` ([`run`]), memory for library use and the
 //! tests ([`compute`]). The stages have no math of their own.
 
@@ -11,7 +11,7 @@ pub(crate) mod plan;
 pub(crate) mod prepare;
 pub(crate) mod write;
 
-/// Kept for `mvao info`, which still names it here; it lives in [`crate::site`].
+/// Kept for `mvao info`, which still names it here; it lives in `crate::site`.
 pub use crate::site::world_bounds;
 
 use crate::config::{ComputeParams, Config};
@@ -65,7 +65,7 @@ pub struct Computed {
 }
 
 /// The whole computation on in-memory scans (poses set): the same stages as [`run`] over a
-/// [`MemoryStore`], without writing.
+/// `MemoryStore`, without writing.
 pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Result<Computed> {
     let cat = catalog::from_scans(scans)?;
     let (sp, mut note) = ssao_params(prm, || SceneScale {
