@@ -9,15 +9,15 @@
 use glam::DVec3;
 use mvao::io::ply::scan;
 use mvao::io::ply::PlyFile;
-use mvao::products::{
+use mvao::synth::write_scan_ply;
+use mvao::synth::{scan_scene, Scene, Station};
+use mvao::testing::products::{
     load_maps_for_merge, load_view, save_view_with, InputRecord, Manifest, MapCompression,
     SaveOptions,
 };
-use mvao::sensor::ProjectionChoice;
-use mvao::ssao::{Estimator, SsaoParams};
-use mvao::synth::write_scan_ply;
-use mvao::synth::{scan_scene, Scene, Station};
-use mvao::view::prepare_view;
+use mvao::testing::sensor::ProjectionChoice;
+use mvao::testing::ssao::{Estimator, SsaoParams};
+use mvao::testing::view::prepare_view;
 use std::hint::black_box;
 use std::time::Instant;
 

@@ -2,9 +2,9 @@
 //! of five: `cargo bench --bench normals` (`-- radii` or `-- normals` for one path only;
 //! `-- kdtree` for the same points without their grid, through the k-d tree and the cell grid).
 
-use mvao::projection::SensorModel;
-use mvao::scan::normals;
 use mvao::synth::{scan_scene, station_layout, SceneKind};
+use mvao::testing::projection::SensorModel;
+use mvao::testing::scan::normals;
 use std::time::Instant;
 
 fn main() {

@@ -2,13 +2,13 @@
 //! ≈1M points each): `cargo bench`. Prints points/s for each per-view stage and
 //! point-views/s for the merge.
 
-use mvao::merge::cull::PointCells;
-use mvao::merge::{self, MergeParams};
-use mvao::projection::SensorModel;
-use mvao::sensor::ProjectionChoice;
-use mvao::ssao::{self, Estimator, SsaoParams};
 use mvao::synth::{scan_scene, station_layout, SceneKind};
-use mvao::view::{merge_views, prepare_view, view_cells, view_maps};
+use mvao::testing::merge::cull::PointCells;
+use mvao::testing::merge::{self, MergeParams};
+use mvao::testing::projection::SensorModel;
+use mvao::testing::sensor::ProjectionChoice;
+use mvao::testing::ssao::{self, Estimator, SsaoParams};
+use mvao::testing::view::{merge_views, prepare_view, view_cells, view_maps};
 use std::time::Instant;
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {

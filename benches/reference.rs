@@ -7,10 +7,10 @@
 //! point (default 64). The machine is shared: rays per
 //! CPU-second (user + system time of this process) is the steadier figure.
 
-use mvao::projection::SensorModel;
-use mvao::reference::{self, RefParams, Scene};
-use mvao::scan::normals;
 use mvao::synth::{scan_scene, station_layout, SceneKind};
+use mvao::testing::projection::SensorModel;
+use mvao::testing::reference::{self, RefParams, Scene};
+use mvao::testing::scan::normals;
 use std::time::Instant;
 
 /// CPU seconds used by this process so far (user + system), from `/proc/self/stat`; the

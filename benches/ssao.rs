@@ -3,11 +3,11 @@
 //! for the 8×8 budget run once, under an instruction counter). The 1×1 row is the per-pixel cost
 //! that does not depend on the budget.
 
-use mvao::projection::SensorModel;
-use mvao::sensor::ProjectionChoice;
-use mvao::ssao::{self, Estimator, SsaoParams};
 use mvao::synth::{scan_scene, station_layout, SceneKind};
-use mvao::view::prepare_view;
+use mvao::testing::projection::SensorModel;
+use mvao::testing::sensor::ProjectionChoice;
+use mvao::testing::ssao::{self, Estimator, SsaoParams};
+use mvao::testing::view::prepare_view;
 use std::time::Instant;
 
 fn main() {

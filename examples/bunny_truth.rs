@@ -10,11 +10,11 @@
 //! ```
 
 use mvao::accuracy::{self, Geometry, RefConfig};
-use mvao::eval::metrics_concat;
 use mvao::io::dataset::{Dataset, PlaceOptions};
-use mvao::reference::RefParams;
 use mvao::synth::reference::mesh_obscurance;
 use mvao::synth::{Mesh, MeshScene, Truth};
+use mvao::testing::eval::metrics_concat;
+use mvao::testing::reference::RefParams;
 use std::path::PathBuf;
 
 fn main() -> anyhow::Result<()> {

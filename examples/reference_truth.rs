@@ -11,11 +11,11 @@
 //! SCENE is a built-in mesh scene (colonnade, vault, relief, porch) or a PLY/OBJ mesh.
 
 use mvao::accuracy::{self, Geometry, RefConfig};
-use mvao::eval::metrics_concat;
 use mvao::io::dataset::PlaceOptions;
-use mvao::projection::SensorModel;
-use mvao::reference::RefParams;
 use mvao::synth::{self, MeshKind, MeshSource, Registration, SynthOptions};
+use mvao::testing::eval::metrics_concat;
+use mvao::testing::projection::SensorModel;
+use mvao::testing::reference::RefParams;
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -71,7 +71,7 @@ fn run() -> anyhow::Result<()> {
         noise: num("noise", "0")?,
         seed: num("seed", "1")? as u64,
         out_dir: scans_dir.clone(),
-        reference: Some(mvao::reference::RefParams {
+        reference: Some(mvao::RefParams {
             rays: num("truth_rays", "256")? as u32,
             tmax,
             ..Default::default()

@@ -1,13 +1,20 @@
 //! The `mvao` binary: parse flags, run one command, print the error chain once, exit non-zero
 //! on failure.
 
+#![cfg_attr(
+    not(test),
+    deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
+)]
+
+mod app;
+
+use app::cli::Cli;
 use clap::Parser;
-use mvao::cli::Cli;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    match mvao::commands::run(cli.command) {
+    match app::commands::run(cli.command) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("mvao: error: {e:#}");

@@ -1,7 +1,5 @@
-//! Progress and timing hooks of the stages, so a computation runs with bars on a terminal or
-//! silently in a test.
-
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+//! Progress, timing and messages of the stages, so a computation runs with bars on a terminal
+//! or silently in a test: the library never prints, the caller's observer decides.
 
 /// Stage hooks: progress and timing, so the computation can run with or without bars.
 pub trait Observer: Sync {
@@ -11,58 +9,12 @@ pub trait Observer: Sync {
     fn advance(&self, _n: u64) {}
     /// A stage ended after `secs` seconds.
     fn done(&self, _name: &str, _secs: f64) {}
+    /// Something the user should know that does not stop the run (also kept in the report).
+    fn warn(&self, _msg: &str) {}
+    /// A summary line: the parameters chosen, accuracy against a reference.
+    fn info(&self, _msg: &str) {}
 }
 
 /// An observer that does nothing (tests, library use).
 pub struct Silent;
 impl Observer for Silent {}
-
-/// Progress bars on stderr (one per stage), silent with `-q` or when stderr is not a terminal.
-pub struct Bars {
-    quiet: bool,
-    bar: std::sync::Mutex<Option<ProgressBar>>,
-}
-
-impl Bars {
-    /// Bars on stderr, none when `quiet`.
-    pub fn new(quiet: bool) -> Bars {
-        Bars {
-            quiet,
-            bar: std::sync::Mutex::new(None),
-        }
-    }
-}
-
-impl Observer for Bars {
-    fn stage(&self, name: &str, total: u64) {
-        if self.quiet {
-            return;
-        }
-        let pb = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
-        pb.set_style(
-            ProgressStyle::with_template(
-                "{prefix:>8} [{bar:40}] {human_pos}/{human_len} points {elapsed_precise} ETA {eta}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        );
-        pb.set_prefix(name.to_string());
-        if let Ok(mut b) = self.bar.lock() {
-            *b = Some(pb);
-        }
-    }
-    fn advance(&self, n: u64) {
-        if let Ok(b) = self.bar.lock() {
-            if let Some(pb) = b.as_ref() {
-                pb.inc(n);
-            }
-        }
-    }
-    fn done(&self, _name: &str, _secs: f64) {
-        if let Ok(mut b) = self.bar.lock() {
-            if let Some(pb) = b.take() {
-                pb.finish();
-            }
-        }
-    }
-}

@@ -15,6 +15,7 @@
 //! (`D` = 0.24 m, spacing about 0.7 mm) gets about 13 mm, where `D/50` gave 4.9 mm and
 //! almost no shading. The clamp keeps a very dense or very sparse scan from an extreme value.
 
+use crate::rng::splitmix64;
 use crate::scan::Scan;
 use glam::Vec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -95,7 +96,7 @@ pub fn scan_spacing(points: &[Vec3]) -> f64 {
         let keep = (SAMPLE as f64 / n as f64 * u64::MAX as f64) as u64;
         points
             .iter()
-            .filter(|p| mix(key(**p)) < keep)
+            .filter(|p| splitmix64(key(**p)) < keep)
             .map(|p| p.to_array())
             .collect()
     };
@@ -154,14 +155,6 @@ pub fn spacing_of(scans: &[Scan]) -> f64 {
 fn key(p: Vec3) -> u64 {
     let [x, y, z] = p.to_array().map(|c| u64::from(c.to_bits()));
     x ^ y.rotate_left(21) ^ z.rotate_left(42)
-}
-
-/// SplitMix64's finaliser: a well-spread hash.
-fn mix(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    x ^ (x >> 31)
 }
 
 #[cfg(test)]

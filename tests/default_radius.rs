@@ -5,11 +5,11 @@
 
 use glam::{DMat4, DVec3};
 use mvao::config::ComputeParams;
-use mvao::pipeline::plan::robust_diagonal;
 use mvao::pipeline::{compute, Computed};
 use mvao::progress::Silent;
-use mvao::scan::Scan;
 use mvao::synth::{scan_scene, Scene, Station};
+use mvao::testing::pipeline::plan::robust_diagonal;
+use mvao::testing::scan::Scan;
 
 /// Two equirect stations in the room (`w × h` each), scaled by `k` about the world origin.
 fn room(w: usize, h: usize, k: f64) -> Vec<Scan> {

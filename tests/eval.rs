@@ -1,6 +1,6 @@
 //! Error metrics on hand-computed vectors.
 
-use mvao::eval::{metrics, metrics_concat, Metrics};
+use mvao::testing::eval::{metrics, metrics_concat, Metrics};
 
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() < 1e-6

@@ -13,7 +13,7 @@ use mvao::synth::{scan_scene, Scene, Station};
 use std::path::PathBuf;
 
 /// Three equirect stations of the synthetic room (small maps), scan-local points with poses.
-fn stations() -> Vec<mvao::scan::Scan> {
+fn stations() -> Vec<mvao::testing::scan::Scan> {
     let scene = Scene::room();
     [
         (DVec3::new(-1.0, -1.5, 1.5), 0.0),
@@ -29,7 +29,7 @@ fn stations() -> Vec<mvao::scan::Scan> {
     .collect()
 }
 
-fn grid_of(s: &mvao::scan::Scan) -> RawGrid {
+fn grid_of(s: &mvao::testing::scan::Scan) -> RawGrid {
     let g = s.grid.as_ref().unwrap();
     RawGrid {
         rows: g.rows,
@@ -39,7 +39,7 @@ fn grid_of(s: &mvao::scan::Scan) -> RawGrid {
     }
 }
 
-fn local_xyz(s: &mvao::scan::Scan) -> Vec<[f64; 3]> {
+fn local_xyz(s: &mvao::testing::scan::Scan) -> Vec<[f64; 3]> {
     s.points.iter().map(|p| p.as_dvec3().to_array()).collect()
 }
 

@@ -5,11 +5,11 @@
 mod common;
 
 use common::*;
-use mvao::gbuffer;
 use mvao::io::dataset::{Dataset, PlaceOptions};
-use mvao::projection::SensorModel;
-use mvao::scan::{Scan, NO_CELL};
-use mvao::sensor::{self, ProjectionChoice};
+use mvao::testing::gbuffer;
+use mvao::testing::projection::SensorModel;
+use mvao::testing::scan::{Scan, NO_CELL};
+use mvao::testing::sensor::{self, ProjectionChoice};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

@@ -5,8 +5,8 @@ mod common;
 
 use common::*;
 use mvao::io::ply::scan::read_scan;
-use mvao::scan::normals;
-use mvao::sensor::{self, ProjectionChoice};
+use mvao::testing::scan::normals;
+use mvao::testing::sensor::{self, ProjectionChoice};
 
 fn compare(path: &std::path::Path) -> (f32, f32) {
     let (scan, _) = read_scan(path).unwrap();
@@ -58,7 +58,7 @@ fn cell_grid_neighbours_are_the_kd_trees() {
         let (scan, _) = read_scan(p).unwrap();
         let pts = &scan.points;
         assert!(pts.len() >= normals::VOXEL_MIN_POINTS, "{}", p.display());
-        assert!(mvao::scan::knn::VoxelGrid::new(pts, normals::K_RADIUS).is_some());
+        assert!(mvao::testing::scan::knn::VoxelGrid::new(pts, normals::K_RADIUS).is_some());
         let toward = |q: glam::Vec3| (-q).normalize_or_zero();
         let (nv, rv) = normals::estimate(pts, true, toward);
         let (nt, rt) = normals::estimate_kdtree(pts, true, toward);

@@ -3,10 +3,10 @@
 //! for cameras and linear sweeps, the sensor's right on the right (not a mirror image).
 
 use glam::{DMat3, DMat4, DVec3, Mat2, Mat3, Vec2};
-use mvao::gbuffer::{GBuffer, EMPTY};
-use mvao::preview::{write_scan_preview, PreviewStyle, Tone, Up};
-use mvao::projection::{Model, Projection};
 use mvao::synth::Scene;
+use mvao::testing::gbuffer::{GBuffer, EMPTY};
+use mvao::testing::preview::{write_scan_preview, PreviewStyle, Tone, Up};
+use mvao::testing::projection::{Model, Projection};
 use std::path::Path;
 
 const W: usize = 160;

@@ -3,8 +3,8 @@
 //! footprint of a ball holding every pixel its points project to.
 
 use glam::{DVec3, Mat2, Mat3, Vec2, Vec3};
-use mvao::projection::{Model, Projection, Warp};
-use mvao::ssao::rng::Rng;
+use mvao::testing::projection::{Model, Projection, Warp};
+use mvao::testing::rng::Rng;
 
 fn full_sphere(w: usize, h: usize) -> Projection {
     let tau = std::f32::consts::TAU;
@@ -392,7 +392,7 @@ fn four_points_project_as_one_at_a_time() {
         let v = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
         pts.push(v * (0.01 + 30.0 * rng.next_f32()));
     }
-    let bits = |p: Option<mvao::projection::Projected>| {
+    let bits = |p: Option<mvao::testing::projection::Projected>| {
         p.map(|p| (p.x.to_bits(), p.y.to_bits(), p.depth.to_bits()))
     };
     for proj in [&full_sphere(1440, 720), &tilted, &warped, &camera] {
@@ -408,7 +408,7 @@ fn four_points_project_as_one_at_a_time() {
 #[test]
 fn four_lane_arctangent_is_the_scalar_one() {
     use glam::Vec4;
-    use mvao::projection::{atan2_4, fast_atan2};
+    use mvao::testing::projection::{atan2_4, fast_atan2};
     let v = [
         0.0f32,
         -0.0,

@@ -16,10 +16,10 @@ use glam::{DMat4, DQuat, DVec2, DVec3, Mat2, Mat3, Vec2};
 use mvao::config::ComputeParams;
 use mvao::pipeline;
 use mvao::progress::Silent;
-use mvao::projection::{Model, Projection, Warp};
-use mvao::scan::Scan;
-use mvao::ssao::Estimator;
 use mvao::synth::{scan_scene, Prim, Scene, Station};
+use mvao::testing::projection::{Model, Projection, Warp};
+use mvao::testing::scan::Scan;
+use mvao::testing::ssao::Estimator;
 use proptest::prelude::*;
 use proptest::test_runner::{Config as ProptestConfig, RngSeed};
 use std::f32::consts::{FRAC_PI_3, FRAC_PI_6, PI, TAU};
@@ -387,7 +387,7 @@ proptest! {
             1 => (-1_000_000i64..1_000_000).prop_map(|k| k as f64 - 1e-12),
         ],
     ) {
-        prop_assert_eq!(mvao::projection::floor_f64(v), v.floor() as i64, "v = {}", v);
+        prop_assert_eq!(mvao::testing::projection::floor_f64(v), v.floor() as i64, "v = {}", v);
     }
 
     /// The PLY writer's libm-free rounding gives the same integer as `f64::round` for every
@@ -828,10 +828,10 @@ fn scan_pair(
 
 /// True when some pixel's nearest depth is shared by two points (the G-buffer then keeps
 /// the lower index, so the point order decides which one).
-fn has_depth_tie(v: &mvao::view::PreparedView) -> bool {
+fn has_depth_tie(v: &mvao::testing::view::PreparedView) -> bool {
     let mut best: std::collections::HashMap<u32, (f32, u32)> = Default::default();
     for (&px, &d) in v.pixel.iter().zip(&v.depth) {
-        if px == mvao::gbuffer::EMPTY || !d.is_finite() {
+        if px == mvao::testing::gbuffer::EMPTY || !d.is_finite() {
             continue;
         }
         let e = best.entry(px).or_insert((f32::INFINITY, 0));

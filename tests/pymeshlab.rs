@@ -9,7 +9,7 @@ mod common;
 use common::*;
 use glam::Vec3;
 use mvao::io::ply::PlyFile;
-use mvao::scan::normals;
+use mvao::testing::scan::normals;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

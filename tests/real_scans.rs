@@ -8,7 +8,7 @@ use mvao::config::ComputeParams;
 use mvao::io::ply::PlyFile;
 use mvao::pipeline;
 use mvao::progress::Silent;
-use mvao::scan::normals;
+use mvao::testing::scan::normals;
 use std::path::Path;
 
 /// Runs `mvao merge` through the binary and checks the outputs of every scan.
@@ -72,7 +72,7 @@ fn concave_vs_convex(
     dir: &str,
     align_file: &str,
     k: usize,
-    estimator: mvao::ssao::Estimator,
+    estimator: mvao::testing::ssao::Estimator,
 ) -> Vec<(String, f32, f32)> {
     let scans = load_aligned(&plys(dir), &fixture(align_file));
     let prm = ComputeParams {
@@ -127,9 +127,11 @@ fn bunny_merge_outputs_every_scan() {
 fn bunny_scans_are_orthographic_looking_along_minus_z() {
     for p in plys("stanford-bunny") {
         let (scan, _) = mvao::io::ply::scan::read_scan(&p).unwrap();
-        let setup = mvao::sensor::setup(&scan, mvao::sensor::ProjectionChoice::Auto).unwrap();
+        let setup =
+            mvao::testing::sensor::setup(&scan, mvao::testing::sensor::ProjectionChoice::Auto)
+                .unwrap();
         match setup.projection.model {
-            mvao::projection::Model::Ortho { toward, .. } => {
+            mvao::testing::projection::Model::Ortho { toward, .. } => {
                 assert!(
                     toward.z > 0.99,
                     "{}: sensor direction {toward}",
@@ -143,7 +145,7 @@ fn bunny_scans_are_orthographic_looking_along_minus_z() {
 
 #[test]
 fn bunny_concave_regions_are_darker() {
-    use mvao::ssao::Estimator;
+    use mvao::testing::ssao::Estimator;
     // The paper's estimator darkens everything (open floor ≈ 0.275), so its contrast is
     // larger; the horizon estimator reads open surface as 1.
     for (est, margin) in [(Estimator::Paper, 0.02), (Estimator::Horizon, 0.01)] {
@@ -182,7 +184,7 @@ fn uos_merge_outputs_every_station() {
 
 #[test]
 fn uos_concave_regions_are_darker() {
-    use mvao::ssao::Estimator;
+    use mvao::testing::ssao::Estimator;
     for est in [Estimator::Paper, Estimator::Horizon] {
         for (name, concave, convex) in
             concave_vs_convex("3dtk-uos-3scans", "3dtk-uos-3scans/alignment.mlp", 24, est)

@@ -6,11 +6,11 @@
 //! bound below is at least four such deviations.
 
 use glam::{DMat4, DVec3, Vec3};
-use mvao::reference::{
+use mvao::testing::reference::{
     self, obscurance, rho, triangulate_grid, triangulate_grid_seen, RefParams, Scene, SceneBuilder,
     View,
 };
-use mvao::scan::Grid;
+use mvao::testing::scan::Grid;
 
 const INF: f32 = f32::INFINITY;
 
@@ -673,7 +673,7 @@ fn real_scan_surfels_and_grid_triangles_agree() {
     let grid = scan.grid.as_ref().expect("bun000 has a range grid");
     // Orthographic scanner looking along −z: the sensor is towards +z.
     let (normals, radii) =
-        mvao::scan::normals::estimate_grid(&scan.points, grid, true, |_| Vec3::Z);
+        mvao::testing::scan::normals::estimate_grid(&scan.points, grid, true, |_| Vec3::Z);
     let normals = normals.unwrap();
     let tris = triangulate_grid(&scan.points, grid).unwrap();
     let mut b = Scene::builder(scan.pose);
@@ -711,8 +711,8 @@ fn real_scan_surfels_and_grid_triangles_agree() {
 /// close to the surface it samples.
 #[test]
 fn synthetic_room_matches_its_analytic_geometry() {
-    use mvao::projection::SensorModel;
     use mvao::synth::{scan_scene, station_layout, SceneKind};
+    use mvao::testing::projection::SensorModel;
     let room = SceneKind::Room.scene();
     let stations = station_layout(SceneKind::Room, SensorModel::Equirect, 3, 480, 240);
     let scans: Vec<_> = stations
@@ -728,7 +728,7 @@ fn synthetic_room_matches_its_analytic_geometry() {
     let mut radii0 = Vec::new();
     for s in &scans {
         let g = s.grid.as_ref().unwrap();
-        let (_, r) = mvao::scan::normals::estimate_grid(&s.points, g, false, |p| -p);
+        let (_, r) = mvao::testing::scan::normals::estimate_grid(&s.points, g, false, |p| -p);
         b.add_surfels(&s.name, s.pose, &s.points, s.normals.as_ref().unwrap(), &r)
             .unwrap();
         if radii0.is_empty() {

@@ -6,10 +6,10 @@
 //! size; `scripts/reference_truth.sh` measures the full-size figures of docs/reference.md.
 
 use mvao::accuracy::{self, Geometry, RefConfig};
-use mvao::eval::{metrics_concat, Metrics};
 use mvao::io::dataset::PlaceOptions;
-use mvao::reference::{RefParams, SelfCheck};
 use mvao::synth::{self, MeshKind, MeshSource, Registration, SynthOptions};
+use mvao::testing::eval::{metrics_concat, Metrics};
+use mvao::testing::reference::{RefParams, SelfCheck};
 use std::path::Path;
 
 struct Case {

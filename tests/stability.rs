@@ -17,10 +17,10 @@ use mvao::io::align::check_rigid;
 use mvao::io::ply::{PlyFile, ScalarType};
 use mvao::pipeline::{self, Computed};
 use mvao::progress::Silent;
-use mvao::projection::SensorModel;
-use mvao::scan::Scan;
-use mvao::ssao::Estimator;
 use mvao::synth::{scan_scene, station_layout, Prim, Scene, SceneKind, Station};
+use mvao::testing::projection::SensorModel;
+use mvao::testing::scan::Scan;
+use mvao::testing::ssao::Estimator;
 use std::path::Path;
 
 // ---------------------------------------------------------------------------------------------
@@ -1412,8 +1412,8 @@ fn stability_cases_are_deterministic() {
 /// points.
 #[test]
 fn bunched_points_and_sparse_grids_keep_maps_small() {
-    use mvao::scan::Grid;
-    use mvao::sensor::{setup, ProjectionChoice};
+    use mvao::testing::scan::Grid;
+    use mvao::testing::sensor::{setup, ProjectionChoice};
     let mut pts = scattered(16_000, 5.0, 3);
     for p in pts.iter_mut() {
         p.z -= 1.0e6;

@@ -10,7 +10,7 @@ use mvao::io::dataset::{Dataset, PlaceOptions};
 use mvao::io::reference::read_ao;
 use mvao::pipeline;
 use mvao::progress::Silent;
-use mvao::ssao::Estimator;
+use mvao::testing::ssao::Estimator;
 use std::path::{Path, PathBuf};
 
 /// `mvao merge` of `scans` into `out` with `extra` flags: each scan's AO as written, and the

@@ -5,9 +5,9 @@ use glam::{DVec2, DVec3};
 use mvao::config::ComputeParams;
 use mvao::pipeline;
 use mvao::progress::Silent;
-use mvao::scan::Scan;
-use mvao::ssao::Estimator;
 use mvao::synth::{scan_scene, Prim, Scene, Station};
+use mvao::testing::scan::Scan;
+use mvao::testing::ssao::Estimator;
 
 fn floor() -> Prim {
     Prim::Quad {

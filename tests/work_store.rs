@@ -4,15 +4,15 @@
 mod common;
 
 use glam::{DVec3, Vec3};
-use mvao::products::manifest::{self, write_entry, MVAO_VERSION};
-use mvao::products::{
+use mvao::synth::{scan_scene, Scene, Station};
+use mvao::testing::products::manifest::{self, write_entry, MVAO_VERSION};
+use mvao::testing::products::{
     load_maps_for_merge, load_view, save_view, save_view_with, Check, InputRecord, Manifest,
     MapCompression, SaveOptions,
 };
-use mvao::sensor::ProjectionChoice;
-use mvao::ssao::{Estimator, SsaoParams};
-use mvao::synth::{scan_scene, Scene, Station};
-use mvao::view::{prepare_view, PreparedView};
+use mvao::testing::sensor::ProjectionChoice;
+use mvao::testing::ssao::{Estimator, SsaoParams};
+use mvao::testing::view::{prepare_view, PreparedView};
 use serde_json::json;
 use std::fs::{self, File};
 use std::path::{Path, PathBuf};
@@ -129,7 +129,7 @@ fn synthetic_view_round_trips_bit_for_bit() {
     let v = yard();
     assert!(v.sensor.grid_pixels.is_some());
     assert!(
-        v.gbuf.point.contains(&mvao::gbuffer::EMPTY),
+        v.gbuf.point.contains(&mvao::testing::gbuffer::EMPTY),
         "some pixels are empty"
     );
     let dir = tempfile::tempdir().unwrap();
@@ -470,7 +470,7 @@ fn inconsistent_views_are_refused() {
 
 #[test]
 fn warps_round_trip_and_bad_ones_are_refused() {
-    use mvao::projection::Warp;
+    use mvao::testing::projection::Warp;
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let mut v = yard().clone();

@@ -352,7 +352,7 @@ fn check_scan(ply: &PlyFile, path: &Path, decoded: &[Option<Rows>]) {
         assert_eq!(g.row.len(), scan.points.len());
         assert_eq!(g.col.len(), scan.points.len());
         // A point is in the grid, or marked as without a cell in both indices.
-        let none = mvao::scan::NO_CELL;
+        let none = mvao::testing::scan::NO_CELL;
         assert!(
             g.row
                 .iter()

@@ -16,7 +16,7 @@ use mvao::io::las::LasInput;
 use mvao::io::output::ColorMode;
 use mvao::io::ptx::{write_ptx, PtxInput};
 use mvao::io::source::{read_input, InputFile};
-use mvao::scan::NO_CELL;
+use mvao::testing::scan::NO_CELL;
 use mvao::Error;
 use std::path::Path;
 

@@ -626,7 +626,7 @@ mod tests {
 
     #[test]
     fn never_leaves_out_a_pair_eq7_could_accept() {
-        let mut rng = crate::ssao::rng::Rng::new(7, 0);
+        let mut rng = crate::rng::Rng::new(7, 0);
         for k in 0..3000 {
             // Radii from 1 mm to 3 m on both sides, so every path (sets at each level, the
             // list of large cells, large target cells) is taken.
@@ -662,12 +662,12 @@ mod tests {
 
     #[test]
     fn large_target_cells_find_the_view_cells_every_cell_would() {
-        let mut rng = crate::ssao::rng::Rng::new(5, 0);
+        let mut rng = crate::rng::Rng::new(5, 0);
         let mut large = 0usize;
         for case in 0..60 {
             // Surfaces of small cells with a scatter of large radii on both sides, so that
             // target cells above the sets meet view cells of larger and smaller radius.
-            let pts = |rng: &mut crate::ssao::rng::Rng, n: usize, r_big: f32| {
+            let pts = |rng: &mut crate::rng::Rng, n: usize, r_big: f32| {
                 let mut p = Vec::with_capacity(n);
                 let mut r = Vec::with_capacity(n);
                 for k in 0..n {

@@ -1,17 +1,17 @@
-//! The stages of a run, in order: [`catalog`] (every input read once) → [`plan`] (parameters,
-//! pairs, memory) → [`prepare`] (per scan: sensor model, normals, G-buffer, SSAO, border) →
-//! [`merge`] (each scan against the views that may share its surface) → [`write`] (outputs
-//! and the report). They run over a [`ViewStore`]: the work directory with its budgeted
+//! The stages of a run, in order: `catalog` (every input read once) → `plan` (parameters,
+//! pairs, memory) → `prepare` (per scan: sensor model, normals, G-buffer, SSAO, border) →
+//! `merge` (each scan against the views that may share its surface) → `write` (outputs
+//! and the report). They run over a `ViewStore`: the work directory with its budgeted
 //! cache for `mvao merge` and `mvao prepare` ([`run`]), memory for library use and the
 //! tests ([`compute`]). The stages have no math of their own.
 
-pub mod catalog;
-pub mod merge;
-pub mod plan;
-pub mod prepare;
-pub mod write;
+pub(crate) mod catalog;
+pub(crate) mod merge;
+pub(crate) mod plan;
+pub(crate) mod prepare;
+pub(crate) mod write;
 
-/// Kept for `mvao info`, which still names it here; it lives in [`crate::site`].
+/// Kept for `mvao info`, which still names it here; it lives in `crate::site`.
 pub use crate::site::world_bounds;
 
 use crate::config::{ComputeParams, Config};
@@ -19,7 +19,7 @@ use crate::error::{Error, Result};
 use crate::io::dataset::Placer;
 use crate::merge::{MergeParams, MergeStats};
 use crate::products::MergeMaps;
-use crate::progress::{Bars, Observer};
+use crate::progress::Observer;
 use crate::radius::SceneScale;
 use crate::report::{Parameters, Plan, Report, ScanReport, Totals};
 use crate::scan::Scan;
@@ -65,7 +65,7 @@ pub struct Computed {
 }
 
 /// The whole computation on in-memory scans (poses set): the same stages as [`run`] over a
-/// [`MemoryStore`], without writing.
+/// `MemoryStore`, without writing.
 pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Result<Computed> {
     let cat = catalog::from_scans(scans)?;
     let (sp, mut note) = ssao_params(prm, || SceneScale {
@@ -243,23 +243,24 @@ pub struct Outcome {
     pub refs: Option<Vec<Vec<f32>>>,
 }
 
-/// `mvao merge`: reads, computes, writes. Returns the report (also written as `report.json`).
-pub fn run(cfg: &Config) -> Result<Report> {
+/// `mvao merge`: reads, computes, writes. Returns the report (also written as `report.json`);
+/// progress, warnings and the summary lines go to `obs`. With `cfg.dry_run` nothing is computed
+/// and the report holds the plan.
+pub fn run(cfg: &Config, obs: &dyn Observer) -> Result<Report> {
     let t_all = Instant::now();
     let mut report = Report {
         version: env!("CARGO_PKG_VERSION").to_string(),
         ..Default::default()
     };
     let warn = |report: &mut Report, msg: String| {
-        eprintln!("warning: {msg}");
+        obs.warn(&msg);
         report.warnings.push(msg);
     };
     if cfg.scans.is_empty() {
         return Err(Error::Param("no scan given".into()));
     }
     write::check_inputs_safe(cfg)?;
-    let obs = Bars::new(cfg.quiet);
-    let oc = run_files(cfg, &obs, cfg.reference.is_some())?;
+    let oc = run_files(cfg, obs, cfg.reference.is_some())?;
     for w in &oc.warnings {
         warn(&mut report, w.clone());
     }
@@ -272,12 +273,11 @@ pub fn run(cfg: &Config) -> Result<Report> {
     report.map_loads = oc.map_loads;
     report.views_kept = oc.views_kept;
     if cfg.dry_run {
-        println!("{}", oc.plan.to_text());
         report.plan = Some(oc.plan);
         return Ok(report);
     }
-    if !cfg.quiet && !cfg.prepare_only {
-        eprintln!(
+    if !cfg.prepare_only {
+        obs.info(&format!(
             "radius {:.4} m, tmax {}, falloff {}, dmin {:.3} m, dmax {:.3} m ({})",
             oc.ssao.radius,
             if oc.ssao.tmax.is_finite() {
@@ -293,27 +293,25 @@ pub fn run(cfg: &Config) -> Result<Report> {
             } else {
                 oc.defaults_note.as_str()
             }
-        );
+        ));
     }
     if let (Some(d), Some(refs)) = (&cfg.reference, &oc.refs) {
         let names: Vec<String> = oc.values.iter().map(|v| v.0.clone()).collect();
         let ssao: Vec<Vec<f32>> = oc.values.iter().map(|v| v.1.clone()).collect();
         let aos: Vec<Vec<f32>> = oc.values.iter().map(|v| v.2.clone()).collect();
         let acc = crate::accuracy::evaluate(d, &names, Some(&ssao), &aos, refs);
-        if !cfg.quiet {
-            if let Some(s) = &acc.ssao {
-                eprintln!("single-view SSAO vs reference: {}", s.one_line());
-            }
-            eprintln!(
-                "{} vs reference: {}",
-                if cfg.compute.ssao_only {
-                    "result"
-                } else {
-                    "MVAO"
-                },
-                acc.result.one_line()
-            );
+        if let Some(s) = &acc.ssao {
+            obs.info(&format!("single-view SSAO vs reference: {}", s.one_line()));
         }
+        obs.info(&format!(
+            "{} vs reference: {}",
+            if cfg.compute.ssao_only {
+                "result"
+            } else {
+                "MVAO"
+            },
+            acc.result.one_line()
+        ));
         report.accuracy = Some(acc);
     }
     report.parameters = Parameters {

@@ -63,7 +63,7 @@ pub fn robust_diagonal(scans: &[Scan]) -> f64 {
 }
 
 /// The SSAO parameters of a run, with a note on how the defaults were derived: radius from
-/// the scene's size and point spacing ([`crate::radius`]; `scale` is only called when no
+/// the scene's size and point spacing (`crate::radius`; `scale` is only called when no
 /// radius is given), t_max = 2 × radius.
 pub fn ssao_params(
     prm: &ComputeParams,

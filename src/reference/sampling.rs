@@ -5,7 +5,7 @@
 //! on the seed, the point's index and `R`. The azimuth shift is applied by turning the
 //! point's tangent frame, so the sines and cosines come from one table per run.
 
-use crate::ssao::rng::Rng;
+use crate::rng::Rng;
 use glam::Vec3;
 use std::f32::consts::TAU;
 

@@ -531,7 +531,7 @@ mod tests {
     fn rng(seed: u64) -> impl FnMut() -> f32 {
         let mut s = seed;
         move || {
-            s = crate::ssao::rng::splitmix64(s);
+            s = crate::rng::splitmix64(s);
             (s >> 40) as f32 / (1u64 << 24) as f32
         }
     }

@@ -348,7 +348,7 @@ impl Geometry {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ssao::rng::Rng;
+    use crate::rng::Rng;
 
     /// The k smallest `(d² bits, index)` keys by brute force.
     fn brute(points: &[Vec3], p: Vec3, k: usize) -> Vec<u64> {

@@ -661,7 +661,7 @@ mod tests {
 
     #[test]
     fn bracketed_selection_agrees_with_a_sort() {
-        let mut rng = crate::ssao::rng::Rng::new(11, 0);
+        let mut rng = crate::rng::Rng::new(11, 0);
         let mut next = || rng.next_u64();
         for n in 1..=SCRATCH {
             for rep in 0..8 {
@@ -793,7 +793,7 @@ mod tests {
     }
 
     /// A symmetric matrix of eigenvalues `l` along the axes of a random rotation.
-    fn rotated(l: [f64; 3], rng: &mut crate::ssao::rng::Rng) -> ([f64; 6], [DVec3; 3]) {
+    fn rotated(l: [f64; 3], rng: &mut crate::rng::Rng) -> ([f64; 6], [DVec3; 3]) {
         let mut g = || 2.0 * rng.next_f32() as f64 - 1.0;
         let r = glam::DMat3::from_quat(glam::DQuat::from_xyzw(g(), g(), g(), g()).normalize());
         let m = r * glam::DMat3::from_diagonal(DVec3::from(l)) * r.transpose();
@@ -809,7 +809,7 @@ mod tests {
     /// degenerate matrices.
     #[test]
     fn smallest_eigenvector_agrees_with_jacobi() {
-        let mut rng = crate::ssao::rng::Rng::new(5, 0);
+        let mut rng = crate::rng::Rng::new(5, 0);
         let spectra = [
             [1e-9, 0.4, 1.0],
             [0.0, 0.3, 1.0],
@@ -861,7 +861,7 @@ mod tests {
     /// patches of planes far from the origin.
     #[test]
     fn pca_normal_agrees_with_two_passes_and_jacobi() {
-        let mut rng = crate::ssao::rng::Rng::new(9, 0);
+        let mut rng = crate::rng::Rng::new(9, 0);
         for round in 0..2000 {
             let mut g = || 2.0 * rng.next_f32() - 1.0;
             let n = Vec3::new(g(), g(), g()).normalize_or(Vec3::Z);

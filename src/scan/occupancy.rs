@@ -95,8 +95,8 @@ pub fn world_cells_and_runs(
 const KEY_BITS: u32 = 21;
 
 /// [`world_cells_and_runs`] with each cell packed into a `u64` relative to the lowest cell of
-/// the points' box, which sorts and searches several times faster than `[i64; 3]` and in the
-/// same order (each axis is non-negative and fixed width, the first most significant). `None`
+/// the points' box, which sorts and searches faster than `[i64; 3]` (one integer compare) and
+/// in the same order (each axis is non-negative and fixed width, the first most significant). `None`
 /// when the box spans too many cells along an axis for the key (or a point falls outside it:
 /// every key is checked, so rounding at the box's corners cannot mislead it). The runs are
 /// left empty unless `with_runs`.
@@ -326,7 +326,7 @@ mod tests {
 
     #[test]
     fn packed_keys_give_the_cells_and_runs_of_the_cells_themselves() {
-        let mut rng = crate::ssao::rng::Rng::new(7, 0);
+        let mut rng = crate::rng::Rng::new(7, 0);
         let (mut packed, mut fell_back) = (0, 0);
         for case in 0..40 {
             // Clouds along a line (long runs) or scattered, georeferenced or not, some with

@@ -214,7 +214,7 @@ mod tests {
     /// pixels holding NaN, ∞ or garbage, valid pixels holding 0, −0, subnormals and ∞.
     #[test]
     fn equals_the_reference_bit_for_bit() {
-        let mut rng = crate::ssao::rng::Rng::new(7, 0);
+        let mut rng = crate::rng::Rng::new(7, 0);
         let mut next = || rng.next_u64();
         let special = [
             0.0,

@@ -4,7 +4,8 @@
 pub mod blur;
 pub mod horizon;
 pub mod paper;
-pub mod rng;
+
+pub(crate) use crate::rng;
 
 pub use crate::falloff::Falloff;
 use crate::gbuffer::GBuffer;

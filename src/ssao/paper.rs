@@ -6,10 +6,10 @@
 //! itself, or on a point at distance 0 carries no information about the neighbourhood and is
 //! skipped (not counted); a pixel with no valid sample keeps `a = 1` and is flagged.
 
-use super::rng::Rng;
 use super::{visibility_weight, AoMap, SsaoParams};
 use crate::gbuffer::GBuffer;
 use crate::projection::{angular_radius, Model, Projection};
+use crate::rng::Rng;
 use rayon::prelude::*;
 
 /// cos and sin of the golden angle π(3 − √5).

@@ -11,7 +11,6 @@ mod mesh_run;
 mod meshes;
 mod output;
 mod prim;
-mod rng;
 mod scanner;
 mod scene;
 
@@ -27,6 +26,7 @@ pub use scene::{Hit, Scene, T_EPS};
 use crate::error::{Error, Result};
 use crate::io::align::{write_mlp, AlignEntry};
 use crate::projection::SensorModel;
+use crate::rng;
 use crate::scan::Scan;
 use glam::{DMat4, DVec2, DVec3, Vec3};
 use serde::Serialize;

@@ -5,10 +5,10 @@
 //! so `project(point)` maps every scanned point back to the centre of its pixel.
 
 use super::mesh::MeshScene;
-use super::rng::SplitMix64;
 use super::scene::{Hit, Scene, T_EPS};
 use crate::error::{Error, Result};
 use crate::projection::{Model, Projection, SensorModel};
+use crate::rng::SplitMix64;
 use crate::scan::{Grid, Scan};
 use glam::{DMat3, DMat4, DVec2, DVec3, Mat2, Vec3};
 use rayon::prelude::*;

@@ -5,7 +5,7 @@ use glam::{DVec3, Vec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use mvao::io::align;
 use mvao::io::ply::scan::read_scan;
-use mvao::scan::Scan;
+use mvao::testing::scan::Scan;
 use std::path::{Path, PathBuf};
 
 /// A fixture path relative to the crate root.

@@ -1,19 +1,19 @@
 //! Command-line flags (what the user typed) and their check into a [`Config`]. Opens no files.
 
-use crate::accuracy::{Geometry, RefConfig};
-use crate::config::{ComputeParams, Config};
-use crate::falloff::{parse_tmax, Falloff};
-use crate::io::dataset::{PlaceOptions, PoseOverride};
-use crate::io::output::ColorMode;
-use crate::io::source::Format;
-use crate::preview::{PreviewStyle, Tone, Up};
-use crate::projection::SensorModel;
-use crate::reference::RefParams;
-use crate::sensor::ProjectionChoice;
-use crate::ssao::Estimator;
-use crate::synth::{MeshKind, MeshSource, Registration, SceneKind, SynthOptions};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use glam::DVec3;
+use mvao::accuracy::{Geometry, RefConfig};
+use mvao::config::{ComputeParams, Config};
+use mvao::falloff::{parse_tmax, Falloff};
+use mvao::io::dataset::{PlaceOptions, PoseOverride};
+use mvao::io::output::ColorMode;
+use mvao::io::source::Format;
+use mvao::synth::{MeshKind, MeshSource, Registration, SceneKind, SynthOptions};
+use mvao::Estimator;
+use mvao::ProjectionChoice;
+use mvao::RefParams;
+use mvao::SensorModel;
+use mvao::{PreviewStyle, Tone, Up};
 use std::path::PathBuf;
 
 /// mvao — multi-view ambient occlusion for raw aligned 3D scans.

@@ -1,10 +1,11 @@
 //! One function per subcommand: build the configuration from the flags, run the library,
 //! print the summary. The binary only parses flags and prints the error chain.
 
-use crate::cli::{Command, EvalArgs, PlotArgs, SweepArgs};
-use crate::config::ComputeParams;
+use super::bars::Bars;
+use super::cli::{Command, EvalArgs, PlotArgs, SweepArgs};
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use mvao::config::ComputeParams;
 use std::io::{IsTerminal as _, Write as _};
 
 /// Runs one subcommand.
@@ -13,7 +14,10 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
         Command::Merge(args) => {
             let quiet = args.quiet;
             let cfg = args.into_config().map_err(anyhow::Error::msg)?;
-            let report = crate::pipeline::run(&cfg)?;
+            let report = mvao::pipeline::run(&cfg, &Bars::new(quiet))?;
+            if let (true, Some(plan)) = (cfg.dry_run, &report.plan) {
+                println!("{}", plan.to_text());
+            }
             if !quiet && !cfg.dry_run {
                 eprintln!(
                     "{} scans, {} points in {:.2} s; {} without SSAO sample, {} with zero merge weight; results in {}",
@@ -31,7 +35,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             let quiet = args.quiet;
             let mut cfg = args.into_config().map_err(anyhow::Error::msg)?;
             cfg.prepare_only = true;
-            let report = crate::pipeline::run(&cfg)?;
+            let report = mvao::pipeline::run(&cfg, &Bars::new(quiet))?;
             if !quiet {
                 eprintln!(
                     "products in {}; {:.2} s",
@@ -45,11 +49,11 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Info(args) => {
-            let info = crate::info::describe(&args.scans, &args.place.options(), args.projection)?;
+            let info = mvao::info::describe(&args.scans, &args.place.options(), args.projection)?;
             if args.json {
                 println!("{}", serde_json::to_string_pretty(&info)?);
             } else {
-                print!("{}", info.to_text());
+                print!("{}", super::info::text(&info));
             }
             info.status()?;
             Ok(())
@@ -58,7 +62,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             let quiet = args.quiet;
             let cfg = args.into_config().map_err(anyhow::Error::msg)?;
             let bar = points_bar(quiet);
-            let rep = crate::accuracy::run_reference(&cfg, &|n| bar.inc(n))?;
+            let rep = mvao::accuracy::run_reference(&cfg, &|n| bar.inc(n))?;
             bar.finish_and_clear();
             if !quiet {
                 let worst = rep
@@ -90,7 +94,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
                         c.open,
                         c.sample,
                         c.darkened,
-                        crate::reference::OPEN_MIN_A,
+                        mvao::OPEN_MIN_A,
                         c.min_open_a,
                         100.0 * c.mean_self_hit_share
                     );
@@ -103,7 +107,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
         Command::Plot(args) => plot(args),
         Command::Synth(args) => {
             let opts = args.into_options().map_err(anyhow::Error::msg)?;
-            let summary = crate::synth::run(&opts)?;
+            let summary = mvao::synth::run(&opts)?;
             let points: usize = summary.files.iter().map(|f| f.points).sum();
             eprintln!(
                 "{} {} scans of the {} scene ({} points) and {} written",
@@ -132,7 +136,7 @@ fn points_bar(quiet: bool) -> ProgressBar {
 }
 
 fn eval(args: EvalArgs) -> anyhow::Result<()> {
-    let acc = crate::accuracy::eval_files(&args.reference, &args.results)?;
+    let acc = mvao::accuracy::eval_files(&args.reference, &args.results)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&acc)?);
     } else {
@@ -147,9 +151,9 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         let f = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v:.6}"));
         let row = format!(
             "{},{},{},0,{},0,0,,{},{},{:.4},{:.6},{:.6},{:.6},{},{:.6},{},{},{},{}\n",
-            crate::sweep::csv_field(&args.dataset),
-            crate::sweep::csv_field(&args.method),
-            crate::sweep::csv_field(&args.method),
+            mvao::sweep::csv_field(&args.dataset),
+            mvao::sweep::csv_field(&args.method),
+            mvao::sweep::csv_field(&args.method),
             args.directions,
             args.tmax,
             points,
@@ -171,7 +175,7 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
             .open(csv)
             .with_context(|| format!("{}: cannot open for appending", csv.display()))?;
         if new {
-            writeln!(file, "{}", crate::sweep::CSV_COLUMNS.join(","))?;
+            writeln!(file, "{}", mvao::sweep::CSV_COLUMNS.join(","))?;
         }
         file.write_all(row.as_bytes())
             .with_context(|| format!("{}: cannot append", csv.display()))?;
@@ -180,21 +184,21 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
 }
 
 fn sweep(args: SweepArgs) -> anyhow::Result<()> {
-    let mut grid = crate::sweep::default_grid();
+    let mut grid = mvao::sweep::default_grid();
     if args.quick {
         grid.retain(|s| {
             matches!(
                 (s.estimator, s.samples, s.directions, s.steps),
-                (crate::ssao::Estimator::Paper, 16 | 32, _, _)
-                    | (crate::ssao::Estimator::Horizon, _, 4, 4)
-                    | (crate::ssao::Estimator::Horizon, _, 8, 8)
+                (mvao::Estimator::Paper, 16 | 32, _, _)
+                    | (mvao::Estimator::Horizon, _, 4, 4)
+                    | (mvao::Estimator::Horizon, _, 8, 8)
             )
         });
         for s in &mut grid {
             s.neighbors = vec![1, 3];
         }
     }
-    let cfg = crate::sweep::SweepConfig {
+    let cfg = mvao::sweep::SweepConfig {
         dataset: args.dataset,
         scans: args.scans,
         place: args.place.options(),
@@ -210,7 +214,7 @@ fn sweep(args: SweepArgs) -> anyhow::Result<()> {
         grid,
         force: args.force,
     };
-    let rows = crate::sweep::run(&cfg, &|line| eprintln!("{line}"))?;
+    let rows = mvao::sweep::run(&cfg, &|line| eprintln!("{line}"))?;
     eprintln!(
         "{} rows: {} and {}",
         rows.len(),
@@ -224,7 +228,7 @@ fn plot(args: PlotArgs) -> anyhow::Result<()> {
     let out = args
         .output
         .unwrap_or_else(|| args.csv.with_extension("svg"));
-    crate::sweep::plot_csv(&args.csv, &out, &args.title)?;
+    mvao::sweep::plot_csv(&args.csv, &out, &args.title)?;
     eprintln!("{}", out.display());
     Ok(())
 }
