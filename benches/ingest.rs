@@ -11,13 +11,13 @@ use mvao::io::ply::scan;
 use mvao::io::ply::PlyFile;
 use mvao::synth::write_scan_ply;
 use mvao::synth::{scan_scene, Scene, Station};
+use mvao::testing::pipeline::occlusion::prepare_view;
 use mvao::testing::products::{
     load_maps_for_merge, load_view, save_view_with, InputRecord, Manifest, MapCompression,
     SaveOptions,
 };
 use mvao::testing::sensor::ProjectionChoice;
 use mvao::testing::ssao::{Estimator, SsaoParams};
-use mvao::testing::view::prepare_view;
 use std::hint::black_box;
 use std::time::Instant;
 

@@ -5,10 +5,11 @@
 use mvao::synth::{scan_scene, station_layout, SceneKind};
 use mvao::testing::merge::cull::PointCells;
 use mvao::testing::merge::{self, MergeParams};
+use mvao::testing::pipeline::occlusion::prepare_view;
 use mvao::testing::projection::SensorModel;
 use mvao::testing::sensor::ProjectionChoice;
 use mvao::testing::ssao::{self, Estimator, SsaoParams};
-use mvao::testing::view::{merge_views, prepare_view, view_cells, view_maps};
+use mvao::testing::view::{merge_views, view_cells, view_maps};
 use std::time::Instant;
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {

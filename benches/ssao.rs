@@ -4,10 +4,10 @@
 //! that does not depend on the budget.
 
 use mvao::synth::{scan_scene, station_layout, SceneKind};
+use mvao::testing::pipeline::occlusion::prepare_view;
 use mvao::testing::projection::SensorModel;
 use mvao::testing::sensor::ProjectionChoice;
 use mvao::testing::ssao::{self, Estimator, SsaoParams};
-use mvao::testing::view::prepare_view;
 use std::time::Instant;
 
 fn main() {

@@ -135,5 +135,8 @@ pub mod testing {
         pub mod plan {
             pub use crate::pipeline::plan::*;
         }
+        pub mod occlusion {
+            pub use crate::pipeline::occlusion::*;
+        }
     }
 }

@@ -1,5 +1,6 @@
-//! The per-view stage functions: one scan's sensor model, normals and radii, G-buffer, SSAO
-//! and border field, and how the merge reads the result. Each sees one scan; which scans run
+//! The per-view stage functions: one scan's sensor model, normals and radii, G-buffer and
+//! border field (its [`ViewGeometry`]), and how the merge reads a [`PreparedView`]. Each sees
+//! one scan; the occlusion stage (`pipeline::occlusion`) adds the AO map, and which scans run
 //! and where their products live is the pipeline's business.
 
 use crate::error::Result;
@@ -9,12 +10,52 @@ use crate::merge::{MergeParams, View, ViewMaps};
 use crate::projection::Projection;
 use crate::scan::{normals, Scan};
 use crate::sensor::{self, ProjectionChoice, SensorSetup};
-use crate::ssao::{self, AoMap, SsaoParams};
+use crate::ssao::AoMap;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// One scan after the per-view stages.
+/// One scan's geometry as its own sensor saw it: what the occlusion stage reads.
+#[derive(Debug, Clone)]
+pub struct ViewGeometry {
+    /// Sensor model and map.
+    pub sensor: SensorSetup,
+    /// The G-buffer.
+    pub gbuf: GBuffer,
+    /// Distance (pixels) to the nearest depth discontinuity.
+    pub border: Vec<f32>,
+    /// Radius of each point.
+    pub radii: Vec<f32>,
+    /// Pixel of each point ([`EMPTY`] if outside the map).
+    pub pixel: Vec<u32>,
+    /// Depth of each point.
+    pub depth: Vec<f32>,
+    /// Normals: "input", "estimated", "input, N re-estimated".
+    pub normals_note: String,
+    /// Wall time of each stage so far (seconds): sensor, normals, gbuffer, border.
+    pub times: Vec<(&'static str, f64)>,
+}
+
+impl ViewGeometry {
+    /// The view with its AO map, computed in `secs` seconds.
+    pub fn with_occlusion(self, ssao: AoMap, secs: f64) -> PreparedView {
+        let mut times = self.times;
+        times.push(("ssao", secs));
+        PreparedView {
+            sensor: self.sensor,
+            gbuf: self.gbuf,
+            ssao,
+            border: self.border,
+            radii: self.radii,
+            pixel: self.pixel,
+            depth: self.depth,
+            normals_note: self.normals_note,
+            times,
+        }
+    }
+}
+
+/// One scan after the per-view stages and the occlusion stage.
 #[derive(Debug, Clone)]
 pub struct PreparedView {
     /// Sensor model and map.
@@ -33,7 +74,7 @@ pub struct PreparedView {
     pub depth: Vec<f32>,
     /// Normals: "input", "estimated", "input, N re-estimated".
     pub normals_note: String,
-    /// Wall time of each per-view stage (seconds): sensor, normals, gbuffer, ssao, border.
+    /// Wall time of each per-view stage (seconds): sensor, normals, gbuffer, border, ssao.
     pub times: Vec<(&'static str, f64)>,
 }
 
@@ -64,12 +105,8 @@ pub fn point_values(pixel: &[u32], ao: &[f32], no_sample: &[bool]) -> (Vec<f32>,
     (v, none)
 }
 
-/// Runs the per-view stages on one scan.
-pub fn prepare_view(
-    scan: &Scan,
-    choice: ProjectionChoice,
-    prm: &SsaoParams,
-) -> Result<PreparedView> {
+/// Runs the per-view stages on one scan: its geometry, ready for the occlusion stage.
+pub fn view_geometry(scan: &Scan, choice: ProjectionChoice) -> Result<ViewGeometry> {
     let mut times = Vec::with_capacity(5);
     let mut t = Instant::now();
     let mut lap = |name: &'static str, t: &mut Instant| {
@@ -92,15 +129,12 @@ pub fn prepare_view(
         &radii,
     );
     lap("gbuffer", &mut t);
-    let ssao = ssao::compute(&gbuf, &proj, prm);
-    lap("ssao", &mut t);
     let border =
         crate::merge::border::border_distance(&gbuf.depth, gbuf.width, gbuf.height, proj.wrap_x);
     lap("border", &mut t);
-    Ok(PreparedView {
+    Ok(ViewGeometry {
         sensor,
         gbuf,
-        ssao,
         border,
         radii,
         pixel,

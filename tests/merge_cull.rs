@@ -8,11 +8,12 @@ use glam::{DMat4, DVec3};
 use mvao::synth::{scan_scene, station_layout, SceneKind};
 use mvao::testing::merge::cull::PointCells;
 use mvao::testing::merge::{self, MergeParams};
+use mvao::testing::pipeline::occlusion::prepare_view;
 use mvao::testing::projection::SensorModel;
 use mvao::testing::scan::Scan;
 use mvao::testing::sensor::ProjectionChoice;
 use mvao::testing::ssao::{Estimator, SsaoParams};
-use mvao::testing::view::{merge_views, prepare_view, view_cells, view_maps};
+use mvao::testing::view::{merge_views, view_cells, view_maps};
 
 fn site(offset: DVec3, model: SensorModel) -> Vec<Scan> {
     let kind = SceneKind::Suite { rooms: 2 };

@@ -5,6 +5,7 @@ mod common;
 
 use glam::{DVec3, Vec3};
 use mvao::synth::{scan_scene, Scene, Station};
+use mvao::testing::pipeline::occlusion::prepare_view;
 use mvao::testing::products::manifest::{self, write_entry, MVAO_VERSION};
 use mvao::testing::products::{
     load_maps_for_merge, load_view, save_view, save_view_with, Check, InputRecord, Manifest,
@@ -12,7 +13,7 @@ use mvao::testing::products::{
 };
 use mvao::testing::sensor::ProjectionChoice;
 use mvao::testing::ssao::{Estimator, SsaoParams};
-use mvao::testing::view::{prepare_view, PreparedView};
+use mvao::testing::view::PreparedView;
 use serde_json::json;
 use std::fs::{self, File};
 use std::path::{Path, PathBuf};

@@ -1,12 +1,14 @@
 //! The stages of a run, in order: `catalog` (every input read once) → `plan` (parameters,
-//! pairs, memory) → `prepare` (per scan: sensor model, normals, G-buffer, SSAO, border) →
-//! `merge` (each scan against the views that may share its surface) → `write` (outputs
+//! pairs, memory) → `prepare` (per scan: sensor model, normals, G-buffer, border) →
+//! `occlusion` (its AO map, stored with it) → `merge` (each scan against the views that may
+//! share its surface) → `write` (outputs
 //! and the report). They run over a `ViewStore`: the work directory with its budgeted
 //! cache for `mvao merge` and `mvao prepare` ([`run`]), memory for library use and the
 //! tests ([`compute`]). The stages have no math of their own.
 
 pub(crate) mod catalog;
 pub(crate) mod merge;
+pub(crate) mod occlusion;
 pub(crate) mod plan;
 pub(crate) mod prepare;
 pub(crate) mod write;

@@ -2,6 +2,7 @@
 //! border field) computed where the store has none current, and stored with its summary.
 
 use super::catalog::{changed, data_hash, Inputs};
+use super::occlusion::prepare_view;
 use crate::error::{Error, Result};
 use crate::progress::Observer;
 use crate::report::CatalogScan;
@@ -9,7 +10,7 @@ use crate::scan::Scan;
 use crate::sensor::ProjectionChoice;
 use crate::ssao::SsaoParams;
 use crate::store::{Summary, ViewStore};
-use crate::view::{depth_range, prepare_view, PreparedView};
+use crate::view::{depth_range, PreparedView};
 use std::time::Instant;
 
 /// What the prepare stage did.

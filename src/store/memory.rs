@@ -93,10 +93,10 @@ impl ViewStore for MemoryStore {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pipeline::occlusion::prepare_view;
     use crate::pipeline::prepare::summarize;
     use crate::ssao::SsaoParams;
     use crate::synth::{scan_scene, Scene, Station};
-    use crate::view::prepare_view;
 
     #[test]
     fn a_stored_view_comes_back_as_it_was_put() {
