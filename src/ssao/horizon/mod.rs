@@ -398,15 +398,20 @@ impl<'a> Ctx<'a> {
         // of the march is its tangent, which stays within a small fraction of a radian of it
         // up to ARC_FROM radians from the point and leaves it beyond.
         const ARC_FROM: f32 = 0.25;
-        let dist = p.length();
-        let angle = if self.tmax < dist {
-            (self.tmax / dist).asin()
+        let arc = if self.sphere {
+            let dist = p.length();
+            let angle = if self.tmax < dist {
+                (self.tmax / dist).asin()
+            } else {
+                // The t_max sphere holds the sensor: the whole half circle.
+                0.999 * PI
+            };
+            // The sensor is the map's origin: the point's distance turns metres ⊥ d into
+            // radians.
+            (angle > ARC_FROM).then_some((dist / per_m, angle))
         } else {
-            // The t_max sphere holds the sensor: the whole half circle.
-            0.999 * PI
+            None
         };
-        // The sensor is the map's origin: the point's distance turns metres ⊥ d into radians.
-        let arc = (self.sphere && angle > ARC_FROM).then_some((dist / per_m, angle));
         grp.arc_on = arc.is_some();
         let a = nrm.dot(view);
         let (pa, na, va) = (Vec3A::from(p), Vec3A::from(nrm), Vec3A::from(view));
