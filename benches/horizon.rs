@@ -10,22 +10,11 @@ use glam::{Mat2, Mat3, Vec2, Vec3};
 use mvao::testing::gbuffer::{rasterize, GBuffer};
 use mvao::testing::projection::{Model, Projection};
 use mvao::testing::ssao::{horizon, paper, Estimator, Falloff, SsaoParams};
+use mvao::testing::sys;
 use std::time::Instant;
 
 /// Depth of the plane z = 0 along the orthographic sensor's axis.
 const DEPTH0: f32 = 1000.0;
-
-/// CPU seconds used by this process so far (user + system), from `/proc/self/stat`.
-fn cpu_seconds() -> f64 {
-    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
-        return 0.0;
-    };
-    // Fields after the parenthesised command name; utime and stime are the 12th and 13th.
-    let rest = s.rsplit_once(')').map_or("", |x| x.1);
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let tick = |k: usize| f.get(k).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
-    (tick(11) + tick(12)) / 100.0
-}
 
 fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
     std::env::var(name)
@@ -164,12 +153,12 @@ fn main() {
         };
         let _ = horizon::ssao(g, proj, &prm);
         let reps = 3;
-        let (t, c) = (Instant::now(), cpu_seconds());
+        let (t, c) = (Instant::now(), sys::cpu_seconds());
         for _ in 0..reps {
             let _ = horizon::ssao(g, proj, &prm);
         }
         let wall = t.elapsed().as_secs_f64() / reps as f64;
-        let cpu = (cpu_seconds() - c) / reps as f64;
+        let cpu = (sys::cpu_seconds() - c) / reps as f64;
         let px = g.filled() as f64 * 1e-6;
         println!(
             "{name}: {:.2} Mpx valid, {dirs}×{steps}: wall {:.3} s ({:.2} Mpx/s on {} threads), \
@@ -183,11 +172,11 @@ fn main() {
         );
         // Baseline on the same machine: the paper estimator with as many samples.
         let pp = SsaoParams { samples: 64, ..prm };
-        let c = cpu_seconds();
+        let c = sys::cpu_seconds();
         let _ = paper::ssao(g, proj, &pp);
         println!(
             "  paper estimator, 64 samples: CPU {:.3} s",
-            cpu_seconds() - c
+            sys::cpu_seconds() - c
         );
     }
 }

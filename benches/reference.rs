@@ -11,20 +11,8 @@ use mvao::synth::{scan_scene, station_layout, SceneKind};
 use mvao::testing::projection::SensorModel;
 use mvao::testing::reference::{self, RefParams, Scene};
 use mvao::testing::scan::normals;
+use mvao::testing::sys;
 use std::time::Instant;
-
-/// CPU seconds used by this process so far (user + system), from `/proc/self/stat`; the
-/// machine is shared, so rays per CPU-second is steadier than rays per wall-second.
-fn cpu_seconds() -> f64 {
-    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
-        return 0.0;
-    };
-    // Fields after the parenthesised command name; utime and stime are the 12th and 13th.
-    let rest = s.rsplit_once(')').map_or("", |x| x.1);
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let tick = |k: usize| f.get(k).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
-    (tick(11) + tick(12)) / 100.0
-}
 
 fn main() {
     let step: usize = std::env::var("MVAO_BENCH_STEP")
@@ -86,11 +74,11 @@ fn main() {
             falloff: Default::default(),
             seed: 1,
         };
-        let cpu0 = cpu_seconds();
+        let cpu0 = sys::cpu_seconds();
         let t = Instant::now();
         let a = reference::obscurance(&scene, &pts, &nrm, &rad, &prm, &|_| {}).expect("reference");
         let wall = t.elapsed().as_secs_f64();
-        let cpu = cpu_seconds() - cpu0;
+        let cpu = sys::cpu_seconds() - cpu0;
         let cast = pts.len() as f64 * rays as f64;
         let conv = reference::convergence(&scene, &pts, &nrm, &rad, &prm, 2000).expect("conv");
         let mean = a.iter().map(|&x| x as f64).sum::<f64>() / a.len().max(1) as f64;

@@ -139,4 +139,7 @@ pub mod testing {
             pub use crate::pipeline::occlusion::*;
         }
     }
+    pub mod sys {
+        pub use crate::sys::*;
+    }
 }

@@ -19,6 +19,19 @@ pub fn current_rss() -> Option<u64> {
     proc_kb("/proc/self/status", "VmRSS:")
 }
 
+/// CPU seconds this process has used so far (user + system), from `/proc/self/stat`; 0 where
+/// the system does not tell. On a shared machine it is steadier than wall time.
+pub fn cpu_seconds() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the parenthesised command name; utime and stime are the 12th and 13th.
+    let rest = s.rsplit_once(')').map_or("", |x| x.1);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |k: usize| f.get(k).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
 /// Total memory of the machine (bytes), where the system tells.
 pub fn total_memory() -> Option<u64> {
     proc_kb("/proc/meminfo", "MemTotal:")
