@@ -36,7 +36,8 @@ fn main() {
         .map(|s| {
             let g = s.grid.as_ref().expect("synthetic scans are gridded");
             let rad = normals::estimate_grid(&s.points, g, false, |p| -p.normalize_or_zero()).1;
-            reference::grid_radii(&s.points, g, reference::View::Origin, &rad).expect("radii")
+            let n = s.normals.as_deref().unwrap_or(&[]);
+            reference::grid_radii(&s.points, g, reference::View::Origin, n, &rad).expect("radii")
         })
         .collect();
     let t = Instant::now();

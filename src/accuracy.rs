@@ -151,7 +151,7 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
     for (i, s) in ds.scans.iter().enumerate() {
         let setup = sensor::setup(s, cfg.projection)?;
         let (normals, radii, _) = crate::view::scan_normals(s, &setup);
-        let radii = reference::surfel_radii(s, &radii)?;
+        let radii = reference::surfel_radii(s, &normals, &radii)?;
         let mesh = match cfg.geometry {
             Geometry::Surfels => None,
             Geometry::Mesh => mesh_of(s, &ds.files[ds.origin[i].0].container)?,

@@ -30,6 +30,11 @@ pub const MIN_VIEW_ANGLE_DEG: f32 = 4.0;
 /// diagonal of a square cell is `0.707·edge`) without reaching past a depth jump.
 pub const GRID_RADIUS_FACTOR: f32 = 0.75;
 
+/// Largest `|ê·n|` of a grid edge `ê` counted in a surfel's radius (its normal `n`): an edge
+/// more than 30° off the tangent plane leads to another surface, across a crease or a depth
+/// jump the line-of-sight test lets through at coarse angular steps.
+pub const EDGE_OFF_PLANE: f32 = 0.5;
+
 /// Where a scan's sensor looks from, for the line-of-sight test of [`MIN_VIEW_ANGLE_DEG`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum View {
@@ -218,17 +223,31 @@ pub fn triangulate_grid_seen(points: &[Vec3], grid: &Grid, view: View) -> Result
 }
 
 /// Surfel radii of a gridded scan for the reference: [`GRID_RADIUS_FACTOR`] times the longest
-/// kept edge (the rule of [`triangulate_grid_seen`]) to the point's four grid neighbours;
-/// `fallback[i]` (usually `rad(p)`) for a point with no kept edge. Unlike `rad(p)`, which
-/// spreads the 32 nearest neighbours over a disk, this neither swells on one-cell-wide
-/// structures (a thin column far away, an edge) nor leaves gaps between the stretched cells
-/// of a grazing floor.
-pub fn grid_radii(points: &[Vec3], grid: &Grid, view: View, fallback: &[f32]) -> Result<Vec<f32>> {
+/// kept edge (the rule of [`triangulate_grid_seen`]) to the point's four grid neighbours,
+/// each edge measured in the point's tangent plane (`normals[i]`; a zero normal takes the
+/// whole edge); `fallback[i]` (usually `rad(p)`) for a point with no kept edge. Unlike
+/// `rad(p)`, which spreads the 32 nearest neighbours over a disk, this neither swells on
+/// one-cell-wide structures (a thin column far away, an edge) nor leaves gaps between the
+/// stretched cells of a grazing floor. Measuring in the tangent plane keeps the disk of a
+/// column's foot, whose grid neighbour below is a long cell of a grazing floor, from
+/// reaching metres across the floor it stands on.
+pub fn grid_radii(
+    points: &[Vec3],
+    grid: &Grid,
+    view: View,
+    normals: &[Vec3],
+    fallback: &[f32],
+) -> Result<Vec<f32>> {
     let g = Cells::new(points, grid, view)?;
     Ok((0..points.len())
         .into_par_iter()
         .map(|i| {
             let (r, c) = (grid.row[i] as isize, grid.col[i] as isize);
+            let n = normals
+                .get(i)
+                .copied()
+                .unwrap_or(Vec3::ZERO)
+                .normalize_or_zero();
             let mut longest = 0.0f32;
             for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
                 // keep() reads an edge from its upper-left end.
@@ -238,11 +257,17 @@ pub fn grid_radii(points: &[Vec3], grid: &Grid, view: View, fallback: &[f32]) ->
                     (r, c)
                 };
                 if g.idx(r, c) == i as u32 && g.keep(sr, sc, dr.abs(), dc.abs()) {
-                    longest = longest.max(g.len(r, c, dr, dc).unwrap_or(0.0));
+                    if let (Some(a), Some(b)) = (g.get(r, c), g.get(r + dr, c + dc)) {
+                        let e = b - a;
+                        let along = e.dot(n);
+                        if along.abs() <= EDGE_OFF_PLANE * e.length() {
+                            longest = longest.max((e - n * along).length());
+                        }
+                    }
                 }
             }
             let f = fallback.get(i).copied().unwrap_or(0.0);
-            if longest > 0.0 {
+            if longest > 0.0 && longest.is_finite() {
                 GRID_RADIUS_FACTOR * longest
             } else {
                 f
@@ -332,7 +357,7 @@ mod tests {
             zs.iter().all(|&z| z == zs[0])
         }));
         let rad = vec![1.0f32; p.len()];
-        let r = grid_radii(&p, &g, View::Origin, &rad).unwrap();
+        let r = grid_radii(&p, &g, View::Origin, &[], &rad).unwrap();
         for (i, q) in p.iter().enumerate() {
             // Post cells are 0.02 apart (rows only), wall cells 0.05.
             let want = if q.z == 2.0 { 0.75 * 0.02 } else { 0.75 * 0.05 };

@@ -66,11 +66,13 @@
 //! Throughput: `cargo bench --bench reference`; the figures are in `docs/reference.md`.
 
 mod bvh;
+mod explain;
 mod grid;
 mod prim;
 pub(crate) mod sampling;
 mod wide;
 
+pub use explain::{RayAccount, RayStop};
 pub use grid::{
     grid_radii, triangulate_grid, triangulate_grid_seen, View, EDGE_RATIO, GRID_RADIUS_FACTOR,
     MIN_VIEW_ANGLE_DEG,
@@ -520,11 +522,11 @@ pub fn scan_view(s: &crate::scan::Scan) -> View {
     }
 }
 
-/// Surfel radii of scan `s` for the reference: [`grid_radii`] on its native grid, else
-/// `rad` (that is `rad(p)`) unchanged.
-pub fn surfel_radii(s: &crate::scan::Scan, rad: &[f32]) -> Result<Vec<f32>> {
+/// Surfel radii of scan `s` (local unit `normals`) for the reference: [`grid_radii`] on its
+/// native grid, else `rad` (that is `rad(p)`) unchanged.
+pub fn surfel_radii(s: &crate::scan::Scan, normals: &[Vec3], rad: &[f32]) -> Result<Vec<f32>> {
     match &s.grid {
-        Some(g) => grid_radii(&s.points, g, scan_view(s), rad),
+        Some(g) => grid_radii(&s.points, g, scan_view(s), normals, rad),
         None => Ok(rad.to_vec()),
     }
 }

@@ -117,6 +117,11 @@ impl<P: Primitive> Bvh<P> {
         Bvh { nodes, prims }
     }
 
+    /// The primitives in leaf order.
+    pub fn prims(&self) -> &[P] {
+        &self.prims
+    }
+
     /// Number of primitives.
     pub fn len(&self) -> usize {
         self.prims.len()
