@@ -119,6 +119,7 @@ fn main() -> anyhow::Result<()> {
     };
     let mut tally: BTreeMap<String, (usize, f64)> = BTreeMap::new();
     let (mut sum_err, mut count) = (0.0f64, 0usize);
+    let mut shown = 0;
     for (si, (s, (normals, radii))) in ds.scans.iter().zip(&geo).enumerate() {
         if only >= 0 && only as usize != si {
             continue;
@@ -177,7 +178,23 @@ fn main() -> anyhow::Result<()> {
             } else {
                 "side"
             };
-            if get("detail", "0") != "0" && count < 3 {
+            let sign_ok = match get("detail", "0").as_str() {
+                "dark" => a[i] < t.get(i).copied().unwrap_or(1.0),
+                "bright" => a[i] > t.get(i).copied().unwrap_or(1.0),
+                "0" => false,
+                _ => true,
+            };
+            let cls_want = get("cls", "any");
+            let n0 = nrm[i];
+            let cls0 = if n0.z > 0.9 {
+                "up"
+            } else if n0.z < -0.9 {
+                "down"
+            } else {
+                "side"
+            };
+            if sign_ok && (cls_want == "any" || cls_want == cls0) && shown < 4 {
+                shown += 1;
                 println!(
                     "point {i} scan {si} p={:?} n={:?} r={:.3} A={:.3} truth={:.3}",
                     pts[i],

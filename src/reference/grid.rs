@@ -31,9 +31,15 @@ pub const MIN_VIEW_ANGLE_DEG: f32 = 4.0;
 pub const GRID_RADIUS_FACTOR: f32 = 0.75;
 
 /// Largest `|ê·n|` of a grid edge `ê` counted in a surfel's radius (its normal `n`): an edge
-/// more than 30° off the tangent plane leads to another surface, across a crease or a depth
+/// more than 17.5° off the tangent plane leads to another surface, across a crease or a depth
 /// jump the line-of-sight test lets through at coarse angular steps.
-pub const EDGE_OFF_PLANE: f32 = 0.5;
+pub const EDGE_OFF_PLANE: f32 = 0.3;
+/// Surfel radius relative to the longest counted edge for a point with fewer than four
+/// counted edges (on a boundary: a silhouette, a convex edge, a hole): a disk of
+/// [`GRID_RADIUS_FACTOR`] there overhangs the surface's true edge and stops the rays of
+/// whatever lies beside it, which at `t_max = ∞` darkens every point that sees the
+/// boundary; a smaller one on every point leaves gaps between the cells of closed walls.
+pub const BORDER_RADIUS_FACTOR: f32 = 0.5;
 
 /// Where a scan's sensor looks from, for the line-of-sight test of [`MIN_VIEW_ANGLE_DEG`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -249,6 +255,7 @@ pub fn grid_radii(
                 .unwrap_or(Vec3::ZERO)
                 .normalize_or_zero();
             let mut longest = 0.0f32;
+            let mut kept = 0;
             for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
                 // keep() reads an edge from its upper-left end.
                 let (sr, sc) = if dr + dc < 0 {
@@ -262,13 +269,19 @@ pub fn grid_radii(
                         let along = e.dot(n);
                         if along.abs() <= EDGE_OFF_PLANE * e.length() {
                             longest = longest.max((e - n * along).length());
+                            kept += 1;
                         }
                     }
                 }
             }
             let f = fallback.get(i).copied().unwrap_or(0.0);
             if longest > 0.0 && longest.is_finite() {
-                GRID_RADIUS_FACTOR * longest
+                let f = if kept == 4 {
+                    GRID_RADIUS_FACTOR
+                } else {
+                    BORDER_RADIUS_FACTOR
+                };
+                f * longest
             } else {
                 f
             }
