@@ -65,6 +65,10 @@ pub struct RefScan {
     pub convergence: Convergence,
     /// Open points (by the data) that the reference darkens, on a sample.
     pub self_check: reference::SelfCheck,
+    /// Height over a point's tangent plane below which a surface parallel to it is taken as
+    /// its own: the separation measured between this scan and the others that overlap it
+    /// (scene units; 0 when none does).
+    pub own_height: f32,
 }
 
 /// `reference.json`.
@@ -167,13 +171,31 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         geo.push((normals, radii));
     }
     let t0 = Instant::now();
-    let scene = b.build();
+    let mut scene = b.build();
+    let mut framed = Vec::with_capacity(ds.scans.len());
+    for (s, (normals, _)) in ds.scans.iter().zip(&geo) {
+        framed.push(scene.to_frame(s.pose, &s.points, normals)?);
+    }
+    let views: Vec<reference::residual::ScanGeometry> = framed
+        .iter()
+        .zip(&geo)
+        .map(
+            |((points, normals), (_, radii))| reference::residual::ScanGeometry {
+                points,
+                normals,
+                radii,
+            },
+        )
+        .collect();
+    let heights = reference::residual::own_heights(&views);
     let build_s = t0.elapsed().as_secs_f64();
     std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
     let mut scans = Vec::with_capacity(ds.scans.len());
     let (mut rays, mut secs) = (0u64, 0.0f64);
-    for (s, (normals, radii)) in ds.scans.iter().zip(&geo) {
-        let (pts, nrm) = scene.to_frame(s.pose, &s.points, normals)?;
+    for (((s, (normals, radii)), (pts, nrm)), &h) in
+        ds.scans.iter().zip(&geo).zip(&framed).zip(&heights)
+    {
+        scene.set_self_height(h);
         let r = reference::reference(&scene, &pts, &nrm, radii, &cfg.params, cfg.sample, progress)?;
         rays += r.convergence.rays_cast;
         secs += r.convergence.seconds;
@@ -187,6 +209,7 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
             Some(&r.self_hits),
         )?;
         scans.push(RefScan {
+            own_height: scene.self_height(),
             self_check: check,
             name: s.name.clone(),
             points: s.len(),

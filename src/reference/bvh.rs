@@ -29,6 +29,11 @@ pub(crate) struct Ray {
     pub r_self: f32,
     /// The query point's unit normal for the own-patch rule (zero: no such rule).
     pub n_self: Vec3,
+    /// Height above the query point's tangent plane below which a surface parallel to it is
+    /// its own (the registration residual between scans; 0: none).
+    pub h_self: f32,
+    /// Rise of the ray per unit length over the tangent plane (`d·n_self`).
+    pub rise: f32,
     /// Hits the rules discarded as the query point's own surface.
     pub discarded: std::cell::Cell<u32>,
 }
@@ -50,15 +55,20 @@ impl Ray {
             inv: safe.recip(),
             r_self,
             n_self: Vec3::ZERO,
+            h_self: 0.0,
+            rise: 0.0,
             discarded: std::cell::Cell::new(0),
         }
     }
 
-    /// A ray of a query point with normal `n` (unit): the own-patch rule applies.
+    /// A ray of a query point with normal `n` (unit) and own-surface height `h_self`: the
+    /// own-patch rule applies.
     #[inline]
-    pub fn of_point(o: Vec3, d: Vec3, r_self: f32, n: Vec3) -> Ray {
+    pub fn of_point(o: Vec3, d: Vec3, r_self: f32, n: Vec3, h_self: f32) -> Ray {
         Ray {
             n_self: n,
+            h_self,
+            rise: d.dot(n),
             ..Ray::new(o, d, r_self)
         }
     }

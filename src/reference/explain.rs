@@ -56,7 +56,7 @@ impl Scene {
         let far = prm.tmax.min(f32::MAX);
         (0..prm.rays)
             .map(|j| {
-                let ray = Ray::of_point(o, pat.dir(j), r, n);
+                let ray = Ray::of_point(o, pat.dir(j), r, n, self.self_height);
                 let mut best = far;
                 let mut stop = None;
                 for s in self.surfels.prims() {

@@ -69,6 +69,7 @@ mod bvh;
 mod explain;
 mod grid;
 mod prim;
+pub mod residual;
 pub(crate) mod sampling;
 mod wide;
 
@@ -163,6 +164,7 @@ pub struct SceneBuilder {
 #[derive(Debug, Clone)]
 pub struct Scene {
     frame: DMat4,
+    self_height: f32,
     surfels: Bvh<Surfel>,
     tris: Bvh<Triangle>,
     skipped: usize,
@@ -292,6 +294,7 @@ impl SceneBuilder {
         let (surfels, tris) = rayon::join(|| Bvh::build(self.surfels), || Bvh::build(self.tris));
         Scene {
             frame: self.frame,
+            self_height: 0.0,
             surfels,
             tris,
             skipped: self.skipped,
@@ -303,6 +306,19 @@ impl Scene {
     /// A builder for a scene in `frame`'s local frame (see [`SceneBuilder::new`]).
     pub fn builder(frame: DMat4) -> SceneBuilder {
         SceneBuilder::new(frame)
+    }
+
+    /// Sets the own-surface height of the query points traced next (see
+    /// [`residual::own_heights`]): a surface within 60° of a point's normal lower than this
+    /// over its tangent plane is the point's own, however far along the ray (0: only the
+    /// `2·rad(p)` rule). Negative or non-finite values count as 0.
+    pub fn set_self_height(&mut self, h: f32) {
+        self.self_height = if h.is_finite() { h.max(0.0) } else { 0.0 };
+    }
+
+    /// The own-surface height in use.
+    pub fn self_height(&self) -> f32 {
+        self.self_height
     }
 
     /// The scene frame → world transform.
@@ -399,7 +415,7 @@ impl Scene {
         let mut own = 0u32;
         if prm.falloff.blocks_fully(prm.tmax) {
             for j in 0..prm.rays {
-                let ray = Ray::of_point(o, pat.dir(j), r, n);
+                let ray = Ray::of_point(o, pat.dir(j), r, n, self.self_height);
                 if self.surfels.trace_origin::<true>(cs, &ray, far, st) == far
                     && self.tris.trace_origin::<true>(ct, &ray, far, st) == far
                 {
@@ -409,7 +425,7 @@ impl Scene {
             }
         } else {
             for j in 0..prm.rays {
-                let ray = Ray::of_point(o, pat.dir(j), r, n);
+                let ray = Ray::of_point(o, pat.dir(j), r, n, self.self_height);
                 let t = self.surfels.trace_origin::<false>(cs, &ray, far, st);
                 let t = self.tris.trace_origin::<false>(ct, &ray, t, st);
                 sum += prm.falloff.rho(t, prm.tmax);

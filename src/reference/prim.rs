@@ -21,10 +21,18 @@ pub(crate) const SELF_NEAR: f32 = 2.0;
 /// own (60°).
 pub(crate) const SELF_COS: f32 = 0.5;
 
+/// Is a hit at distance `t` near enough to be on the query point's own patch: closer than
+/// `SELF_NEAR·rad(p)`, or lower over its tangent plane than the own-surface height (the
+/// registration residual between scans, which a grazing ray meets far from the point)?
+#[inline(always)]
+fn near_self(ray: &Ray, t: f32) -> bool {
+    t < SELF_NEAR * ray.r_self || t * ray.rise < ray.h_self
+}
+
 /// Is a hit at distance `t` on a surface of unit normal `nq` the query point's own patch?
 #[inline(always)]
 fn own_patch(ray: &Ray, t: f32, nq: Vec3) -> bool {
-    t < SELF_NEAR * ray.r_self && ray.n_self.dot(nq).abs() > SELF_COS
+    near_self(ray, t) && ray.n_self.dot(nq).abs() > SELF_COS
 }
 /// An oriented disk (32 bytes).
 #[derive(Debug, Clone, Copy)]
@@ -122,9 +130,7 @@ impl Primitive for Triangle {
         if !(t > 0.0 && t < t_hi) {
             return None;
         }
-        if t < SELF_NEAR * ray.r_self
-            && own_patch(ray, t, self.e1.cross(self.e2).normalize_or_zero())
-        {
+        if near_self(ray, t) && own_patch(ray, t, self.e1.cross(self.e2).normalize_or_zero()) {
             ray.discard();
             return None;
         }
