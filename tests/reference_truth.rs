@@ -19,6 +19,7 @@ struct Case {
     noise: f64,
     registration: Registration,
     normals: bool,
+    width: usize,
 }
 
 impl Case {
@@ -30,20 +31,21 @@ impl Case {
             noise: 0.0,
             registration: Registration::default(),
             normals: true,
+            width: 180,
         }
     }
 }
 
-/// The metrics of the reference against the truth over all stations, and each scan's
-/// self-check.
-fn score(dir: &Path, c: &Case) -> (Metrics, Vec<SelfCheck>) {
+/// The metrics of the reference against the truth over all stations, each scan's self-check
+/// and own-surface height.
+fn score(dir: &Path, c: &Case) -> (Metrics, Vec<SelfCheck>, Vec<f32>) {
     let scans = dir.join("scans");
     let rays = 64;
     let sum = synth::run(&SynthOptions {
         mesh: Some(MeshSource::Builtin(c.kind)),
         stations: 3,
-        width: 180,
-        height: 90,
+        width: c.width,
+        height: c.width / 2,
         noise: c.noise,
         seed: 1,
         out_dir: scans.clone(),
@@ -98,7 +100,8 @@ fn score(dir: &Path, c: &Case) -> (Metrics, Vec<SelfCheck>) {
         .map(|(a, t)| (a.as_slice(), t.as_slice()))
         .collect();
     let checks = rep.scans.iter().map(|s| s.self_check).collect();
-    (metrics_concat(&parts), checks)
+    let heights = rep.scans.iter().map(|s| s.own_height).collect();
+    (metrics_concat(&parts), checks, heights)
 }
 
 fn assert_close(m: &Metrics, e_a: f64, shaded: f64, r: f64, what: &str) {
@@ -120,7 +123,7 @@ fn assert_checks_pass(checks: &[SelfCheck], self_share: f32, what: &str) {
 #[test]
 fn vault_references_match_the_exact_mesh() {
     let dir = tempfile::tempdir().unwrap();
-    let (m, checks) = score(
+    let (m, checks, _) = score(
         dir.path(),
         &Case::new(MeshKind::Vault, 0.4, Geometry::Surfels),
     );
@@ -131,14 +134,14 @@ fn vault_references_match_the_exact_mesh() {
         checks.iter().map(|c| c.open).sum::<usize>() > 30,
         "{checks:?}"
     );
-    let (m, _) = score(
+    let (m, _, _) = score(
         dir.path(),
         &Case::new(MeshKind::Vault, f32::INFINITY, Geometry::Surfels),
     );
-    assert_close(&m, 0.03, 0.035, 0.99, "vault surfels inf");
-    let (m, _) = score(dir.path(), &Case::new(MeshKind::Vault, 0.4, Geometry::Mesh));
+    assert_close(&m, 0.015, 0.015, 0.99, "vault surfels inf");
+    let (m, _, _) = score(dir.path(), &Case::new(MeshKind::Vault, 0.4, Geometry::Mesh));
     assert!(m.e_a <= 0.01, "vault mesh 0.4: {}", m.one_line());
-    let (m, _) = score(
+    let (m, _, _) = score(
         dir.path(),
         &Case::new(MeshKind::Vault, f32::INFINITY, Geometry::Mesh),
     );
@@ -151,13 +154,18 @@ fn vault_references_match_the_exact_mesh() {
 #[test]
 fn colonnade_surfel_reference_beats_answering_open() {
     let dir = tempfile::tempdir().unwrap();
-    let (m, checks) = score(
+    let (m, checks, _) = score(
         dir.path(),
         &Case::new(MeshKind::Colonnade, 0.4, Geometry::Surfels),
     );
-    assert_close(&m, 0.01, 0.05, 0.7, "colonnade surfels 0.4");
+    assert_close(&m, 0.01, 0.05, 0.8, "colonnade surfels 0.4");
     assert!(m.skill.unwrap() > 0.2, "{}", m.one_line());
-    assert_checks_pass(&checks, 0.05, "colonnade surfels 0.4");
+    // At this size one open point of about fifty beside the boundary disk of a column reads
+    // 0.88: the check's 1 % cannot be met with one point; allow that one.
+    for c in &checks {
+        assert!(c.darkened <= 1 && c.min_open_a > 0.85, "{c:?}");
+        assert!(c.mean_self_hit_share < 0.05, "{c:?}");
+    }
 }
 
 /// Range noise 2 mm, registration error 2 mm / 0.05° per station and estimated normals (no
@@ -172,7 +180,7 @@ fn noisy_misregistered_scans_without_normals() {
         angle_deg: 0.05,
     };
     c.normals = false;
-    let (m, checks) = score(dir.path(), &c);
+    let (m, checks, _) = score(dir.path(), &c);
     assert!(m.e_a <= 0.02, "{}", m.one_line());
     assert!(m.bias.abs() <= 0.01, "{}", m.one_line());
     // Noise and estimated normals make a fifth to a quarter of the rays meet their own surface.
@@ -186,4 +194,20 @@ fn noisy_misregistered_scans_without_normals() {
     let hits = ply.scalar_column("vertex", "self_hits").unwrap();
     assert!(hits.iter().all(|&h| (0.0..=64.0).contains(&h)));
     assert!(hits.iter().any(|&h| h > 0.0));
+}
+
+/// The arcade under open sky at t_max = ∞ (360 × 180 stations): every disk that overhangs a
+/// column's or an arch's true edge, or spans the floor behind a one-cell-wide column, darkens
+/// every point that sees it. Before the tangent-plane edges and the smaller boundary disks
+/// the surfels read e_A 0.031 with bias −0.030 here (128 rays).
+#[test]
+fn colonnade_open_sky_at_infinity() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = Case::new(MeshKind::Colonnade, f32::INFINITY, Geometry::Surfels);
+    c.width = 360;
+    let (m, _, heights) = score(dir.path(), &c);
+    assert_close(&m, 0.016, 0.018, 0.99, "colonnade surfels inf");
+    assert!(m.bias.abs() <= 0.01, "{}", m.one_line());
+    // Exact registration, noise-free: the stations' samples of a surface coincide.
+    assert!(heights.iter().all(|&h| h < 1e-3), "{heights:?}");
 }
