@@ -196,10 +196,10 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         ds.scans.iter().zip(&geo).zip(&framed).zip(&heights)
     {
         scene.set_self_height(h);
-        let r = reference::reference(&scene, &pts, &nrm, radii, &cfg.params, cfg.sample, progress)?;
+        let r = reference::reference(&scene, pts, nrm, radii, &cfg.params, cfg.sample, progress)?;
         rays += r.convergence.rays_cast;
         secs += r.convergence.seconds;
-        let check = reference::self_check(&scene, &pts, &nrm, radii, &r, &cfg.params, cfg.sample);
+        let check = reference::self_check(&scene, pts, nrm, radii, &r, &cfg.params, cfg.sample);
         write_reference_ply(
             &reference_path(&cfg.out_dir, &s.name),
             s,
