@@ -43,6 +43,12 @@ fn main() -> anyhow::Result<()> {
         width: get("width", "180").parse()?,
         height: get("height", "90").parse()?,
         seed: 1,
+        noise: get("noise", "0").parse()?,
+        normals: get("normals", "1") != "0",
+        registration: mvao::synth::Registration {
+            translation: get("reg", "0,0").split(',').next().unwrap_or("0").parse()?,
+            angle_deg: get("reg", "0,0").split(',').nth(1).unwrap_or("0").parse()?,
+        },
         out_dir: out.clone(),
         reference: Some(RefParams {
             rays,

@@ -256,6 +256,7 @@ pub fn grid_radii(
                 .normalize_or_zero();
             let mut longest = 0.0f32;
             let mut kept = 0;
+            let mut any = 0.0f32;
             for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
                 // keep() reads an edge from its upper-left end.
                 let (sr, sc) = if dr + dc < 0 {
@@ -266,6 +267,7 @@ pub fn grid_radii(
                 if g.idx(r, c) == i as u32 && g.keep(sr, sc, dr.abs(), dc.abs()) {
                     if let (Some(a), Some(b)) = (g.get(r, c), g.get(r + dr, c + dc)) {
                         let e = b - a;
+                        any = any.max((e - n * e.dot(n)).length());
                         let along = e.dot(n);
                         if along.abs() <= EDGE_OFF_PLANE * e.length() {
                             longest = longest.max((e - n * along).length());
@@ -275,6 +277,14 @@ pub fn grid_radii(
                 }
             }
             let f = fallback.get(i).copied().unwrap_or(0.0);
+            // Where no edge lies in the tangent plane (a normal estimated from noisy points
+            // can be tens of degrees off), rad(p) would swell a thin structure's disk to
+            // several times its width: it is held to the boundary size of the kept edges.
+            let f = if any > 0.0 {
+                f.min(BORDER_RADIUS_FACTOR * any)
+            } else {
+                f
+            };
             if longest > 0.0 && longest.is_finite() {
                 let f = if kept == 4 {
                     GRID_RADIUS_FACTOR
@@ -372,10 +382,43 @@ mod tests {
         let rad = vec![1.0f32; p.len()];
         let r = grid_radii(&p, &g, View::Origin, &[], &rad).unwrap();
         for (i, q) in p.iter().enumerate() {
-            // Post cells are 0.02 apart (rows only), wall cells 0.05.
-            let want = if q.z == 2.0 { 0.75 * 0.02 } else { 0.75 * 0.05 };
+            // Post cells are 0.02 apart (rows only: a boundary), wall cells 0.05; wall cells
+            // beside the post or on the grid's edge are on a boundary too.
+            let (row, col) = (g.row[i], g.col[i]);
+            let inside = row > 0 && row < 7 && col > 0 && col < 8 && col != 3 && col != 5;
+            let want = if q.z == 2.0 {
+                BORDER_RADIUS_FACTOR * 0.02
+            } else if inside {
+                GRID_RADIUS_FACTOR * 0.05
+            } else {
+                BORDER_RADIUS_FACTOR * 0.05
+            };
             assert!((r[i] - want).abs() < 1e-4, "{i} {q} {}", r[i]);
         }
+    }
+
+    #[test]
+    fn edges_off_the_tangent_plane_do_not_size_the_disk() {
+        // A wall tilted 45° to the line of sight; its last row is stepped 0.04 off its plane
+        // (a crease): the edge down to it passes the line-of-sight and ratio tests but lies
+        // steeply off the tangent plane, so the point above it is sized as a boundary point.
+        let n = Vec3::new(1.0, 0.0, -1.0).normalize();
+        let (p, g) = grid_of(3, 3, |r, c| {
+            let x = c as f32 * 0.02 - 0.02;
+            let wall = Vec3::new(x, r as f32 * 0.02, 2.0 + x);
+            Some(if r < 2 { wall } else { wall + n * 0.04 })
+        });
+        let normals = vec![n; p.len()];
+        let rad = vec![1.0f32; p.len()];
+        let r = grid_radii(&p, &g, View::Origin, &normals, &rad).unwrap();
+        let mid = (0..p.len())
+            .find(|&i| g.row[i] == 1 && g.col[i] == 1)
+            .unwrap();
+        let want = BORDER_RADIUS_FACTOR * 0.02 * 2f32.sqrt();
+        assert!((r[mid] - want).abs() < 1e-4, "{} {want}", r[mid]);
+        // Without normals every kept edge counts: an inside point.
+        let r = grid_radii(&p, &g, View::Origin, &[], &rad).unwrap();
+        assert!(r[mid] > want * 1.2, "{}", r[mid]);
     }
 
     #[test]
