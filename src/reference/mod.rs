@@ -31,14 +31,18 @@
 //!    the point's (`|n_q·n_p| > 0.5`, either side) is ignored: neighbours tilted by normal
 //!    error or noise, the co-located samples of another scan lifted by a registration
 //!    residual, a grid triangle cutting the corner of a crease. A real occluder that close
-//!    faces across (the wall of a crease) and is kept.
+//!    faces across (the wall of a crease) and is kept. The same holds at any distance for
+//!    such a surface lower over the tangent plane than the scan's own-surface height
+//!    ([`residual::own_heights`], [`Scene::set_self_height`]): the separation measured
+//!    between overlapping scans, which a grazing ray meets far beyond `2·rad(p)`.
 //!
 //! Each ray that had a hit discarded by these rules is counted per point
 //! ([`Reference::self_hits`], the `self_hits` column of the reference files): a large share
 //! shows where the value rests on the rules rather than on the data.
 //!
 //! **Sizes from the grid.** For scans with a native grid, [`surfel_radii`] gives each disk
-//! `0.75 ×` its longest kept grid edge instead of `rad(p)`: `rad(p)` spreads the 32 nearest
+//! `0.75 ×` its longest kept grid edge measured in its tangent plane (`0.5 ×` on a boundary,
+//! edges steeply off the plane not counted: [`grid_radii`]) instead of `rad(p)`: `rad(p)` spreads the 32 nearest
 //! neighbours over a disk, which swells the disks of one-cell-wide structures (a thin
 //! column far away, a silhouette) to several times their width and leaves gaps between the
 //! stretched cells of a grazing floor. Grid edges within 4° of the line of sight are dropped
