@@ -188,12 +188,13 @@ impl Ctx<'_> {
                 let Some(half) = Half::new(a, b, u, view, nrm) else {
                     continue;
                 };
-                let (cos_h, seen) = fam.horizon(line, i, dir, c, pa, &half, self.pts);
+                let (blocked, seen) = fam.horizon(line, i, dir, c, pa, &half, self.pts);
                 any |= seen;
+                let t = half.open();
                 nodes[count] = Node {
                     psi: u.dot(e2).atan2(u.dot(e1)),
-                    s: half.open_below(cos_h),
-                    t: half.open(),
+                    s: (t - blocked).max(0.0),
+                    t,
                 };
                 count += 1;
             }
@@ -240,9 +241,9 @@ pub(crate) struct Half {
     a: f32,
     b: f32,
     lo: f32,
-    hi: f32,
+    pub(crate) hi: f32,
     /// `cos hi`.
-    cos_hi: f32,
+    pub(crate) cos_hi: f32,
     pub(crate) fx: Vec3A,
     pub(crate) fy: Vec3A,
 }
@@ -293,21 +294,19 @@ impl Half {
         (self.g(self.hi) - self.g(self.lo)).max(0.0)
     }
 
-    /// `S` for the horizon at `cos h = cos_h` (`−∞`: nothing above the tangent plane): the
-    /// directions between `lo` and `min(h, hi)`. A horizon within 10⁻⁵ rad of the tangent
-    /// plane counts as on it (rounding noise of a plane).
-    fn open_below(&self, cos_h: f32) -> f32 {
-        if !(cos_h > self.cos_hi) {
-            return self.open();
-        }
-        let h = cos_h.clamp(-1.0, 1.0).acos();
-        if h > self.hi - 1e-5 {
-            return self.open();
-        }
-        if h <= self.lo {
+    /// `∫ f` over the arc from `l` (given as `cos l`) to `upper`, within `[lo, hi]`. An arc
+    /// that ends at `hi` and starts within 10⁻⁵ rad of it is empty (rounding noise of a plane).
+    pub(crate) fn blocked(&self, cos_l: f32, upper: f32) -> f32 {
+        let l = cos_l.clamp(-1.0, 1.0).acos();
+        if upper >= self.hi && l > self.hi - 1e-5 {
             return 0.0;
         }
-        (self.g(h) - self.g(self.lo)).max(0.0)
+        let (a, b) = (l.max(self.lo), upper.min(self.hi));
+        if b > a {
+            (self.g(b) - self.g(a)).max(0.0)
+        } else {
+            0.0
+        }
     }
 
     /// `cos γ` of a sample at offset `v` from the receiver, `None` when it is not in the

@@ -144,9 +144,16 @@ impl Family {
         self.normals[l]
     }
 
-    /// The lowest horizon (largest `cos γ`, at least `cos hi`) of the half-plane `half` of pixel
-    /// `c` at `pa`, snapped to sample `i` of line `l`, over the samples before it (`dir = −1`)
-    /// or after it (`dir = 1`); and whether any valid sample was read.
+    /// The blocked part `∫ f` of the half-plane `half` of pixel `c` at `pa`, snapped to sample
+    /// `i` of line `l`, by the samples before it (`dir = −1`) or after it (`dir = 1`), each
+    /// solid behind as the sensor sees it; and whether any valid sample was read.
+    ///
+    /// A sample at `γ` from `V` and `φ` round from the receiver (seen from the sensor) blocks
+    /// the arc `[γ, π − φ)`: the directions that pass below it and cross the ray from the
+    /// sensor beyond it. In order of `φ` the arcs' upper ends fall, so the union is a stack
+    /// of disjoint arcs of which only the lowest grows: a sample whose arc reaches it lowers
+    /// it to `γ`, one that does not starts a new lowest arc. On straight lines `φ` stays small
+    /// and every arc reaches `hi`.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn horizon(
         &self,
@@ -177,7 +184,7 @@ impl Family {
             Shape::Screen { .. } => 0.0,
         };
         let reaches = |d: i64, cos_h: f32| !circle || (d as f32 * step).cos() >= -cos_h;
-        let (mut cur, mut seen) = (half.cos_hi, false);
+        let (mut cur, mut upper, mut closed, mut seen) = (half.cos_hi, half.hi, 0.0f32, false);
         let gamma = |s: u32| -> Option<f32> {
             if s == EMPTY_SAMPLE || s as usize == c {
                 return None;
@@ -199,18 +206,17 @@ impl Family {
                     (j == start, end - start)
                 };
                 if first && d + span - 1 <= reach {
-                    let (v0, v1) = blocks[(start / BLOCK) as usize];
-                    let mut best = cur;
-                    for &s in &self.verts[v0 as usize..v1 as usize] {
-                        if let Some(cg) = gamma(s) {
-                            seen = true;
-                            best = best.max(cg);
+                    // The whole block within reach of the horizon before it (a raise only
+                    // brings samples nearer reach): its hull stands for it; otherwise its
+                    // samples are read in order.
+                    if reaches(d + span - 1, cur) {
+                        let (v0, v1) = blocks[(start / BLOCK) as usize];
+                        for &s in &self.verts[v0 as usize..v1 as usize] {
+                            if let Some(cg) = gamma(s) {
+                                seen = true;
+                                cur = cur.max(cg);
+                            }
                         }
-                    }
-                    // The whole block within reach of the raised horizon: its hull stands
-                    // for it; otherwise its samples are read in order.
-                    if reaches(d + span - 1, best) {
-                        cur = best;
                         d += span;
                         continue;
                     }
@@ -220,11 +226,19 @@ impl Family {
                 seen = true;
                 if reaches(d, cur) {
                     cur = cur.max(cg);
+                } else {
+                    // Out of reach of the blocked arc: the sample blocks its own arc
+                    // [γ, π − φ), below every arc so far (later samples are farther round).
+                    let e = PI - d as f32 * step;
+                    if cg.clamp(-1.0, 1.0).acos() < e {
+                        closed += half.blocked(cur, upper);
+                        (cur, upper) = (cg, e);
+                    }
                 }
             }
             d += 1;
         }
-        (cur, seen)
+        (half.blocked(cur, upper) + closed, seen)
     }
 }
 

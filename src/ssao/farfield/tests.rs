@@ -12,15 +12,22 @@ use glam::{Mat3, Vec3};
 const INF: f32 = f32::INFINITY;
 
 /// Plain ambient occlusion of `p` (normal `n`) through the map read as a height field: a ray
-/// is blocked where it passes behind a valid pixel's surface as the sensor sees it, and leaves
-/// through empty pixels or off the map.
+/// is blocked where it passes behind a valid pixel's facet (its point and normal) as a sensor
+/// at the origin sees it, and leaves through empty pixels or off the map.
 fn map_reference(g: &GBuffer, proj: &Projection, p: Vec3, n: Vec3, k: usize, seed: u64) -> f32 {
     let dirs = cosine_dirs(n, k, seed);
     let scale = p.length().max(1.0);
     let behind = |q: Vec3| -> Option<bool> {
         let pr = proj.project(q)?;
         let c = proj.pixel_index(pr.x, pr.y)?;
-        Some(g.is_valid(c) && pr.depth > g.depth[c] + 1e-3 * g.depth[c].abs())
+        if !g.is_valid(c) {
+            return Some(false);
+        }
+        // Each pixel is the facet of its point and normal (sensor at the origin).
+        let (pc, nc) = (g.position[c], g.normal[c]);
+        let den = nc.dot(q);
+        let t = nc.dot(pc) / den;
+        Some(den.abs() > 1e-9 && t > 0.0 && t < 1.0 - 1e-4)
     };
     let open = dirs
         .iter()
