@@ -11,7 +11,7 @@
 //! # Lines
 //!
 //! A half-plane through the sensor direction is the image of a plane through the sensor. The
-//! map is covered by `K = 2 × directions` families of such planes, each family a set of
+//! map is covered by `K = 4 × directions` families (at most 64) of such planes, each family a set of
 //! lines one pixel apart, each line sampled once per pixel of length:
 //!
 //! - pinhole and orthographic maps: parallel straight screen lines at angle `πk/K` (the image
@@ -85,8 +85,8 @@ pub fn applies(prm: &SsaoParams) -> bool {
     prm.falloff.blocks_fully(prm.tmax)
 }
 
-/// Computes the unblurred plain ambient occlusion of every valid pixel from `2 × directions`
-/// line families. A projection whose size differs from the G-buffer's flags every valid pixel.
+/// Computes the unblurred plain ambient occlusion of every valid pixel from `4 × directions`
+/// line families (at most 64). A projection whose size differs from the G-buffer's flags every valid pixel.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     let n = g.width * g.height;
     let mut ao = crate::par::filled(n, 1.0f32);
@@ -109,7 +109,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
             no_sample: flag,
         };
     }
-    let k = (2 * prm.directions.max(1) as usize).min(MAX_FAMILIES);
+    let k = (4 * prm.directions.max(1) as usize).min(MAX_FAMILIES);
     let fams: Vec<Family> = (0..k).map(|f| Family::new(g, proj, f, k)).collect();
     let pts: Vec<Vec3A> = g.position.iter().map(|&p| Vec3A::from(p)).collect();
     let ctx = Ctx {

@@ -141,13 +141,6 @@ fn equirect_court_converges_at_the_default_budget() {
     let g = cast(&proj, court);
     let refs = picks(&g, &proj, 200);
     let m = ssao(&g, &proj, &params(8, 8, INF));
-    let hz = crate::ssao::horizon::ssao(&g, &proj, &params(32, 64, INF));
-    for r in refs.iter().take(30) {
-        eprintln!(
-            "{} {:?} {:?} ref {:.3} far {:.3} hz {:.3}",
-            r.0, g.position[r.0], g.normal[r.0], r.1, m.ao[r.0], hz.ao[r.0]
-        );
-    }
     let e = mean_abs_error(&m, &refs);
     eprintln!(
         "court at t_max = ∞, span {:.3}: mean |a − A| {e:.4}",
