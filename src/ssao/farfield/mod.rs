@@ -5,8 +5,11 @@
 //! The estimator is the horizon estimator's (see [`super::horizon`]): half-planes around the
 //! view direction `V`, each giving `S = G(h) − G(lo)` for its final horizon `h` and the open
 //! value `T = G(hi) − G(lo)`, and `a = Σ w S / Σ w T`. With `ρ ≡ 0` a blocked direction adds
-//! nothing whatever its distance, so a half-plane needs only its lowest horizon angle `h` over
-//! every sample of the map on it, which is what a sweep shares between pixels.
+//! nothing whatever its distance, so a half-plane needs only which arcs of directions the map's
+//! samples on it block (`S = T − ∫ f` over them), which is what a sweep shares between pixels.
+//! A sample at `γ` from `V` and `φ` round from the receiver (seen from the sensor) is solid
+//! behind and blocks `[γ, π − φ)` (see `sweep.rs`); on straight lines `φ` is small and this is
+//! the horizon estimator's `[γ, hi]`.
 //!
 //! # Lines
 //!
@@ -31,7 +34,9 @@
 //! A line is cut into blocks of [`BLOCK`] samples, and each block keeps only the vertices of the
 //! convex hull of its points in the line's plane. Seen from a pixel outside the block's angular
 //! range (every pixel of the line but the block's own), the lowest horizon over the block's
-//! points is reached at a hull vertex: the tangent from the pixel to the hull. The vertices are
+//! points is reached at a hull vertex: the tangent from the pixel to the hull. A hull stands for
+//! its block when every sample of the block is within reach of the blocked arc so far (then
+//! each only lowers it); otherwise the block's samples are read in order. The vertices are
 //! the block's peaks as seen from *any* receiver, exactly, where the paper keeps two receiver
 //! angles per interval.
 //!
