@@ -5,11 +5,13 @@
 //! machine may be shared) averaged over three runs after a warm-up.
 //! `MVAO_SPEED_N` sets `N`, `MVAO_SPEED_CASE=ortho` or `=pinhole` runs one scene,
 //! `MVAO_SPEED_DIRS` and `MVAO_SPEED_STEPS` set the budget (default 8 × 8).
+//! `MVAO_SPEED_CASE=tmax` times the occlusion stage (`ssao::compute`, no blur) on the pinhole
+//! scene at `t_max` 0.4 m, 4 m and ∞ (the far-field sweeps), in CPU seconds.
 
 use glam::{Mat2, Mat3, Vec2, Vec3};
 use mvao::testing::gbuffer::{rasterize, GBuffer};
 use mvao::testing::projection::{Model, Projection};
-use mvao::testing::ssao::{horizon, paper, Estimator, Falloff, SsaoParams};
+use mvao::testing::ssao::{self as ssao, horizon, paper, Estimator, Falloff, SsaoParams};
 use mvao::testing::sys;
 use std::time::Instant;
 
@@ -136,6 +138,9 @@ fn main() {
         ("ortho waves, t_max 12 px", &g_waves, &ortho, 12.0f32),
         ("pinhole floor+wall, t_max 0.3", &g_persp, &persp, 0.3),
     ];
+    if only.as_deref().is_none_or(|o| o == "tmax") {
+        stage_by_tmax(&g_persp, &persp, dirs, steps);
+    }
     for (name, g, proj, tmax) in cases {
         if only.as_deref().is_some_and(|o| !name.starts_with(o)) {
             continue;
@@ -177,6 +182,36 @@ fn main() {
         println!(
             "  paper estimator, 64 samples: CPU {:.3} s",
             sys::cpu_seconds() - c
+        );
+    }
+}
+
+/// CPU seconds of the occlusion stage at three `t_max` on one map, best of three.
+fn stage_by_tmax(g: &GBuffer, proj: &Projection, dirs: u32, steps: u32) {
+    let mut base = None;
+    for tmax in [0.4f32, 4.0, f32::INFINITY] {
+        let prm = SsaoParams {
+            estimator: Estimator::Horizon,
+            radius: tmax.min(1.0),
+            tmax,
+            falloff: Falloff::Smoothstep,
+            samples: 32,
+            directions: dirs,
+            steps,
+            seed: 1,
+            blur: false,
+        };
+        let best = (0..3)
+            .map(|_| {
+                let c = sys::cpu_seconds();
+                let _ = ssao::compute(g, proj, &prm);
+                sys::cpu_seconds() - c
+            })
+            .fold(f64::INFINITY, f64::min);
+        let b = *base.get_or_insert(best);
+        println!(
+            "pinhole floor+wall, occlusion stage at t_max {tmax}: CPU {best:.3} s ({:.2} × 0.4 m)",
+            best / b
         );
     }
 }

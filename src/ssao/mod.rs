@@ -2,6 +2,7 @@
 //! then per-point values and flags. Sees one scan, never its pose or other scans.
 
 pub mod blur;
+pub mod farfield;
 pub mod horizon;
 pub mod paper;
 
@@ -77,6 +78,7 @@ pub fn visibility_weight(n: glam::Vec3, v: glam::Vec3, len: f32) -> f32 {
 pub fn compute(g: &GBuffer, proj: &Projection, p: &SsaoParams) -> AoMap {
     let mut map = match p.estimator {
         Estimator::Paper => paper::ssao(g, proj, p),
+        Estimator::Horizon if farfield::applies(p) => farfield::ssao(g, proj, p),
         Estimator::Horizon => horizon::ssao(g, proj, p),
     };
     if p.blur {

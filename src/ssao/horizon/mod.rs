@@ -789,4 +789,4 @@ impl Slice {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -9,7 +9,7 @@ use glam::{Mat2, Mat3, Vec2, Vec3};
 
 const DEPTH0: f32 = 1000.0;
 
-fn params(directions: u32, steps: u32, tmax: f32) -> SsaoParams {
+pub(crate) fn params(directions: u32, steps: u32, tmax: f32) -> SsaoParams {
     SsaoParams {
         estimator: Estimator::Horizon,
         radius: tmax,
@@ -24,7 +24,7 @@ fn params(directions: u32, steps: u32, tmax: f32) -> SsaoParams {
 }
 
 /// An orthographic sensor looking down at z = 0 with square pixels of size `step`.
-fn ortho(w: usize, h: usize, step: f32) -> Projection {
+pub(crate) fn ortho(w: usize, h: usize, step: f32) -> Projection {
     let model = Model::Ortho {
         a: Vec3::new(1.0 / step, 0.0, 0.0),
         a0: 0.0,
@@ -38,7 +38,7 @@ fn ortho(w: usize, h: usize, step: f32) -> Projection {
 
 /// A height field `z = f(x, y)` (with its normal) seen from above: one point per pixel
 /// centre.
-fn heightfield(
+pub(crate) fn heightfield(
     w: usize,
     h: usize,
     step: f32,
@@ -60,7 +60,7 @@ fn heightfield(
 
 /// The G-buffer of an analytic scene ray cast through every pixel centre (`hit` returns
 /// the ray parameter and normal of the first hit; rays are unit for point sensors).
-fn cast(proj: &Projection, hit: impl Fn(Vec3, Vec3) -> Option<(f32, Vec3)>) -> GBuffer {
+pub(crate) fn cast(proj: &Projection, hit: impl Fn(Vec3, Vec3) -> Option<(f32, Vec3)>) -> GBuffer {
     let (mut px, mut d, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for i in 0..proj.width * proj.height {
         let (x, y) = ((i % proj.width) as f32 + 0.5, (i / proj.width) as f32 + 0.5);
@@ -79,7 +79,7 @@ fn cast(proj: &Projection, hit: impl Fn(Vec3, Vec3) -> Option<(f32, Vec3)>) -> G
 }
 
 /// A full-circle equirect sensor at the origin, pole along z.
-fn equirect(w: usize, h: usize) -> Projection {
+pub(crate) fn equirect(w: usize, h: usize) -> Projection {
     let model = Model::Equirect {
         rot: Mat3::IDENTITY,
         az_ref: 0.0,
@@ -92,15 +92,15 @@ fn equirect(w: usize, h: usize) -> Projection {
 }
 
 /// Corners of a closed 6 × 5 × 3 m room around a scanner 1.5 m above its floor.
-const ROOM: (Vec3, Vec3) = (Vec3::new(-2.5, -2.0, -1.5), Vec3::new(3.5, 3.0, 1.5));
+pub(crate) const ROOM: (Vec3, Vec3) = (Vec3::new(-2.5, -2.0, -1.5), Vec3::new(3.5, 3.0, 1.5));
 
 /// The G-buffer of [`ROOM`] seen by `proj`.
-fn room(proj: &Projection) -> GBuffer {
+pub(crate) fn room(proj: &Projection) -> GBuffer {
     cast(proj, |o, d| box_hit(o, d, ROOM.0, ROOM.1))
 }
 
 /// The G-buffer of the floor z = −3 and the wall y = 4 seen by `proj`.
-fn floor_and_wall(proj: &Projection) -> GBuffer {
+pub(crate) fn floor_and_wall(proj: &Projection) -> GBuffer {
     cast(proj, |o, d| {
         let f = plane(o, d, Vec3::Z, -3.0).map(|t| (t, Vec3::Z));
         let wl = plane(o, d, Vec3::NEG_Y, -4.0).map(|t| (t, Vec3::NEG_Y));
@@ -113,7 +113,7 @@ fn floor_and_wall(proj: &Projection) -> GBuffer {
 
 /// A pinhole camera at the origin looking along +y, pitched down by `pitch`, 60° vertical
 /// field of view.
-fn camera(w: usize, h: usize, pitch: f32) -> Projection {
+pub(crate) fn camera(w: usize, h: usize, pitch: f32) -> Projection {
     let z = Vec3::new(0.0, pitch.cos(), -pitch.sin());
     let x = Vec3::X;
     let y = z.cross(x);
@@ -127,14 +127,14 @@ fn camera(w: usize, h: usize, pitch: f32) -> Projection {
 }
 
 /// Ray-plane hit `n·x = c` (normal facing the ray's origin side).
-fn plane(o: Vec3, d: Vec3, n: Vec3, c: f32) -> Option<f32> {
+pub(crate) fn plane(o: Vec3, d: Vec3, n: Vec3, c: f32) -> Option<f32> {
     let den = n.dot(d);
     let t = (c - n.dot(o)) / den;
     (den < 0.0 && t > 0.0).then_some(t)
 }
 
 /// Cosine-weighted, stratified directions around `n` (Malley), `k × k` of them.
-fn cosine_dirs(n: Vec3, k: usize, seed: u64) -> Vec<Vec3> {
+pub(crate) fn cosine_dirs(n: Vec3, k: usize, seed: u64) -> Vec<Vec3> {
     let (t1, t2) = n.any_orthonormal_pair();
     let mut rng = Rng::new(seed, 0);
     let mut out = Vec::with_capacity(k * k);
@@ -248,7 +248,7 @@ fn bottom_of_a_narrow_pit_is_dark() {
 }
 
 /// A smooth random-looking height field (pixel size 1) and its gradient.
-fn waves(x: f32, y: f32) -> (f32, Vec3) {
+pub(crate) fn waves(x: f32, y: f32) -> (f32, Vec3) {
     const W: [(f32, f32, f32, f32); 3] = [
         // amplitude, kx, ky, phase
         (7.0, 0.150, 0.045, 0.3),
@@ -273,7 +273,13 @@ fn waves_reference(p: Vec3, n: Vec3, tmax: f32) -> f32 {
 
 /// [`waves_reference`] with any falloff, the field cut at the square `[0, size]²` (what a
 /// map of that size holds: rays leaving it miss).
-fn waves_reference_with(p: Vec3, n: Vec3, tmax: f32, falloff: Falloff, size: f32) -> f32 {
+pub(crate) fn waves_reference_with(
+    p: Vec3,
+    n: Vec3,
+    tmax: f32,
+    falloff: Falloff,
+    size: f32,
+) -> f32 {
     let dirs = cosine_dirs(n, 40, 7);
     let dt = 0.1f32;
     let mut sum = 0.0f32;
@@ -350,7 +356,7 @@ fn every_falloff_and_an_infinite_tmax_converge_to_the_ray_traced_height_field() 
     }
 }
 
-fn mean_abs_error(m: &AoMap, refs: &[(usize, f32)]) -> f32 {
+pub(crate) fn mean_abs_error(m: &AoMap, refs: &[(usize, f32)]) -> f32 {
     refs.iter().map(|&(i, r)| (m.ao[i] - r).abs()).sum::<f32>() / refs.len() as f32
 }
 
@@ -419,7 +425,7 @@ fn oblique_pinhole_view_of_floor_and_wall_matches_the_reference() {
 }
 
 /// First hit from inside the box `[lo, hi]`: ray parameter and inward normal.
-fn box_hit(o: Vec3, d: Vec3, lo: Vec3, hi: Vec3) -> Option<(f32, Vec3)> {
+pub(crate) fn box_hit(o: Vec3, d: Vec3, lo: Vec3, hi: Vec3) -> Option<(f32, Vec3)> {
     let mut best: Option<(f32, Vec3)> = None;
     for axis in 0..3 {
         let (dv, ov) = (d[axis], o[axis]);

@@ -1,0 +1,390 @@
+//! The line families of the far-field sweeps: where their samples fall, which line and sample a
+//! pixel snaps to, the block hulls, and the horizon of a half-plane over them.
+
+use super::{Half, BLOCK, NEAR};
+use crate::gbuffer::GBuffer;
+use crate::projection::{Model, Projection};
+use glam::{Vec2, Vec3, Vec3A};
+use rayon::prelude::*;
+use std::f32::consts::{PI, TAU};
+
+/// A sample outside the map or on an empty pixel.
+const EMPTY_SAMPLE: u32 = u32::MAX;
+
+/// The golden angle, spreading the circle families' axes evenly in azimuth.
+const GOLDEN: f32 = 2.399_963_2;
+
+/// How a family's samples are laid on the map.
+#[derive(Debug, Clone, Copy)]
+enum Shape {
+    /// Straight screen lines along `t`, line `l` at offset `n0 + l` along `nrm`, sample `i` at
+    /// `t0 + i` along `t`.
+    Screen {
+        t: Vec2,
+        nrm: Vec2,
+        n0: f32,
+        t0: f32,
+    },
+    /// Great circles through the axis `a`: circle `l` holds the directions
+    /// `cos φ·a + sin φ·w(β)`, `w(β) = cos β b1 + sin β b2`, `β = l·dbeta`, sample `i` at
+    /// `φ = i·step`.
+    Circle {
+        a: Vec3A,
+        b1: Vec3A,
+        b2: Vec3A,
+        dbeta: f32,
+        step: f32,
+    },
+}
+
+/// One family of lines: every valid pixel lies on (next to) one of them.
+pub(super) struct Family {
+    shape: Shape,
+    lines: usize,
+    len: usize,
+    /// Per line: the normal `m` of its plane, oriented so that the samples advance by rotating
+    /// about it (screen lines of an orthographic map: advance along `V × m`).
+    normals: Vec<Vec3A>,
+    /// `lines × len` sample pixels.
+    samples: Vec<u32>,
+    /// Per line and block: the range of its hull vertices in `verts`.
+    blocks: Vec<(u32, u32)>,
+    verts: Vec<u32>,
+    nblocks: usize,
+}
+
+impl Family {
+    /// Family `f` of `k` for the map `g` seen by `proj`.
+    pub(super) fn new(g: &GBuffer, proj: &Projection, f: usize, k: usize) -> Family {
+        let (shape, lines, len) = layout(proj, f, k);
+        let nblocks = len.div_ceil(BLOCK as usize);
+        let rows: Vec<(Vec<u32>, Vec3A, Vec<Vec<u32>>)> = (0..lines)
+            .into_par_iter()
+            .map(|l| {
+                let row: Vec<u32> = (0..len)
+                    .map(|i| match sample_pixel(&shape, proj, l, i) {
+                        Some(c) if g.is_valid(c) => c as u32,
+                        _ => EMPTY_SAMPLE,
+                    })
+                    .collect();
+                let m = line_normal(&shape, proj, l, len);
+                let hulls = row
+                    .chunks(BLOCK as usize)
+                    .map(|b| hull(b, m, &g.position))
+                    .collect();
+                (row, m, hulls)
+            })
+            .collect();
+        let mut fam = Family {
+            shape,
+            lines,
+            len,
+            normals: Vec::with_capacity(lines),
+            samples: Vec::with_capacity(lines * len),
+            blocks: Vec::with_capacity(lines * nblocks),
+            verts: Vec::new(),
+            nblocks,
+        };
+        for (row, m, hulls) in rows {
+            fam.samples.extend_from_slice(&row);
+            fam.normals.push(m);
+            for h in hulls {
+                let start = fam.verts.len() as u32;
+                fam.verts.extend_from_slice(&h);
+                fam.blocks.push((start, fam.verts.len() as u32));
+            }
+        }
+        fam
+    }
+
+    /// The line and sample a pixel snaps to, from its centre `(x, y)` and the unit direction
+    /// `dir` from the sensor to its point (used on circles).
+    pub(super) fn locate(&self, centre: (f32, f32), dir: Vec3A) -> Option<(usize, usize)> {
+        match self.shape {
+            Shape::Screen { t, nrm, n0, t0 } => {
+                let c = Vec2::new(centre.0, centre.1);
+                let l = (c.dot(nrm) - n0).round();
+                let i = (c.dot(t) - t0).round();
+                let ok = l >= 0.0 && (l as usize) < self.lines && i >= 0.0;
+                (ok && (i as usize) < self.len).then_some((l as usize, i as usize))
+            }
+            Shape::Circle {
+                a,
+                b1,
+                b2,
+                dbeta,
+                step,
+            } => {
+                let z = dir.dot(a);
+                let w = dir - a * z;
+                let wl = w.length();
+                if !(wl > 1e-6) {
+                    return None;
+                }
+                let mut beta = w.dot(b2).atan2(w.dot(b1));
+                let mut phi = wl.atan2(z);
+                if beta < 0.0 {
+                    beta += PI;
+                    phi = TAU - phi;
+                }
+                let mut l = (beta / dbeta).round() as usize;
+                if l >= self.lines {
+                    // β = π is the circle β = 0 run backwards.
+                    l = 0;
+                    phi = TAU - phi;
+                }
+                let i = ((phi / step).round() as usize) % self.len;
+                Some((l, i))
+            }
+        }
+    }
+
+    /// The normal of line `l`'s plane.
+    pub(super) fn normal(&self, l: usize) -> Vec3A {
+        self.normals[l]
+    }
+
+    /// The blocked part `∫ f` of the half-plane `half` of pixel `c` at `pa`, snapped to sample
+    /// `i` of line `l`, by the samples before it (`dir = −1`) or after it (`dir = 1`), each
+    /// solid behind as the sensor sees it; and whether any valid sample was read.
+    ///
+    /// A sample at `γ` from `V` and `φ` round from the receiver (seen from the sensor) blocks
+    /// the arc `[γ, π − φ)`: the directions that pass below it and cross the ray from the
+    /// sensor beyond it. In order of `φ` the arcs' upper ends fall, so the union is a stack
+    /// of disjoint arcs of which only the lowest grows: a sample whose arc reaches it lowers
+    /// it to `γ`, one that does not starts a new lowest arc. On straight lines `φ` stays small
+    /// and every arc reaches `hi`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn horizon(
+        &self,
+        l: usize,
+        i: usize,
+        dir: i64,
+        c: usize,
+        pa: Vec3A,
+        half: &Half,
+        pts: &[Vec3A],
+    ) -> (f32, bool) {
+        let n = self.len as i64;
+        let i = i as i64;
+        let circle = matches!(self.shape, Shape::Circle { .. });
+        // On a circle, samples at π or more round are on the other side of V.
+        let reach = match (circle, dir < 0) {
+            (true, _) => (n - 1) / 2,
+            (false, true) => i,
+            (false, false) => n - 1 - i,
+        };
+        let row = &self.samples[l * self.len..(l + 1) * self.len];
+        let blocks = &self.blocks[l * self.nblocks..(l + 1) * self.nblocks];
+        // Seen from the sensor at angle φ round a circle from the receiver, a sample hides
+        // only directions γ < π − φ (rays at larger γ never come that far round): it raises
+        // the horizon h only while φ ≤ π − h, i.e. cos φ ≥ −cos h.
+        let step = match self.shape {
+            Shape::Circle { step, .. } => step,
+            Shape::Screen { .. } => 0.0,
+        };
+        let reaches = |d: i64, cos_h: f32| !circle || (d as f32 * step).cos() >= -cos_h;
+        let (mut cur, mut upper, mut closed, mut seen) = (half.cos_hi, half.hi, 0.0f32, false);
+        let gamma = |s: u32| -> Option<f32> {
+            if s == EMPTY_SAMPLE || s as usize == c {
+                return None;
+            }
+            Some(
+                half.cos_gamma(pts[s as usize] - pa)
+                    .unwrap_or(f32::NEG_INFINITY),
+            )
+        };
+        let mut d = 1i64;
+        while d <= reach {
+            let j = (i + dir * d).rem_euclid(n);
+            if d > NEAR {
+                let start = j - j % BLOCK;
+                let end = (start + BLOCK).min(n);
+                let (first, span) = if dir < 0 {
+                    (j == end - 1, j - start + 1)
+                } else {
+                    (j == start, end - start)
+                };
+                if first && d + span - 1 <= reach {
+                    // The whole block within reach of the horizon before it (a raise only
+                    // brings samples nearer reach): its hull stands for it; otherwise its
+                    // samples are read in order.
+                    if reaches(d + span - 1, cur) {
+                        let (v0, v1) = blocks[(start / BLOCK) as usize];
+                        for &s in &self.verts[v0 as usize..v1 as usize] {
+                            if let Some(cg) = gamma(s) {
+                                seen = true;
+                                cur = cur.max(cg);
+                            }
+                        }
+                        d += span;
+                        continue;
+                    }
+                }
+            }
+            if let Some(cg) = gamma(row[j as usize]) {
+                seen = true;
+                if reaches(d, cur) {
+                    cur = cur.max(cg);
+                } else {
+                    // Out of reach of the blocked arc: the sample blocks its own arc
+                    // [γ, π − φ), below every arc so far (later samples are farther round).
+                    let e = PI - d as f32 * step;
+                    if cg.clamp(-1.0, 1.0).acos() < e {
+                        closed += half.blocked(cur, upper);
+                        (cur, upper) = (cg, e);
+                    }
+                }
+            }
+            d += 1;
+        }
+        (half.blocked(cur, upper) + closed, seen)
+    }
+}
+
+/// Family `f` of `k`: its shape, number of lines and samples per line.
+fn layout(proj: &Projection, f: usize, k: usize) -> (Shape, usize, usize) {
+    if let Model::Equirect { sx, sy, .. } = proj.model {
+        // One sample per pixel of the denser axis.
+        let density = sx.abs().max(sy.abs()).max(1e-3);
+        let len = ((TAU * density).ceil() as usize).max(8);
+        let lines = len.div_ceil(2);
+        let z = (f as f32 + 0.5) / k as f32;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let (s, co) = (GOLDEN * f as f32).sin_cos();
+        let a = Vec3A::new(r * co, r * s, z);
+        let (b1, b2) = a.any_orthonormal_pair();
+        let shape = Shape::Circle {
+            a,
+            b1,
+            b2,
+            dbeta: PI / lines as f32,
+            step: TAU / len as f32,
+        };
+        return (shape, lines, len);
+    }
+    let (s, co) = (PI * f as f32 / k as f32).sin_cos();
+    let (t, nrm) = (Vec2::new(co, s), Vec2::new(-s, co));
+    let (w, h) = (proj.width as f32, proj.height as f32);
+    let corners = [
+        Vec2::ZERO,
+        Vec2::new(w, 0.0),
+        Vec2::new(0.0, h),
+        Vec2::new(w, h),
+    ];
+    let span = |d: Vec2| {
+        let v = corners.map(|c| c.dot(d));
+        (
+            v.iter().copied().fold(f32::INFINITY, f32::min),
+            v.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+        )
+    };
+    let ((nmin, nmax), (tmin, tmax)) = (span(nrm), span(t));
+    let shape = Shape::Screen {
+        t,
+        nrm,
+        n0: nmin + 0.5,
+        t0: tmin + 0.5,
+    };
+    let lines = ((nmax - nmin).ceil() as usize).max(1);
+    let len = ((tmax - tmin).ceil() as usize).max(1);
+    (shape, lines, len)
+}
+
+/// The map pixel of sample `i` of line `l`, if it falls on the map.
+fn sample_pixel(shape: &Shape, proj: &Projection, l: usize, i: usize) -> Option<usize> {
+    match *shape {
+        Shape::Screen { t, nrm, n0, t0 } => {
+            let q = nrm * (n0 + l as f32) + t * (t0 + i as f32);
+            let (x, y) = (q.x.floor(), q.y.floor());
+            let ok = x >= 0.0 && y >= 0.0 && (x as usize) < proj.width;
+            (ok && (y as usize) < proj.height).then(|| y as usize * proj.width + x as usize)
+        }
+        Shape::Circle {
+            a,
+            b1,
+            b2,
+            dbeta,
+            step,
+        } => {
+            let (sb, cb) = (dbeta * l as f32).sin_cos();
+            let (sp, cp) = (step * i as f32).sin_cos();
+            let d = a * cp + (b1 * cb + b2 * sb) * sp;
+            let q = proj.project(Vec3::from(d))?;
+            proj.pixel_index(q.x, q.y)
+        }
+    }
+}
+
+/// The normal of line `l`'s plane, oriented so that its samples advance by a positive rotation
+/// about it (on an orthographic map: in the direction `V × m`... see [`Family::normals`]).
+fn line_normal(shape: &Shape, proj: &Projection, l: usize, len: usize) -> Vec3A {
+    match *shape {
+        Shape::Circle {
+            a, b1, b2, dbeta, ..
+        } => {
+            let (sb, cb) = (dbeta * l as f32).sin_cos();
+            a.cross(b1 * cb + b2 * sb)
+        }
+        Shape::Screen { t, nrm, n0, t0 } => {
+            let at = |i: f32| nrm * (n0 + l as f32) + t * (t0 + i);
+            let (p, q) = (at(0.0), at(len.max(2) as f32 - 1.0));
+            let (Some((o1, d1)), Some((o2, d2))) = (proj.ray(p.x, p.y), proj.ray(q.x, q.y)) else {
+                return Vec3A::ZERO;
+            };
+            let shift = o2 - o1;
+            let m = if shift.length_squared() > 1e-12 * (1.0 + o1.length_squared()) {
+                // Parallel rays: the plane holds the view axis and the shift along the line.
+                d1.cross(shift)
+            } else {
+                d1.cross(d2)
+            };
+            Vec3A::from(m.normalize_or_zero())
+        }
+    }
+}
+
+/// The pixels of a block's samples that are vertices of the convex hull of their points,
+/// projected on the plane of normal `m`.
+fn hull(block: &[u32], m: Vec3A, pos: &[Vec3]) -> Vec<u32> {
+    let m = if m.length_squared() > 0.0 {
+        m.normalize()
+    } else {
+        Vec3A::Z
+    };
+    let (ea, eb) = m.any_orthonormal_pair();
+    let mut pts: Vec<(f32, f32, u32)> = block
+        .iter()
+        .filter(|&&s| s != EMPTY_SAMPLE)
+        .map(|&s| {
+            let q = Vec3A::from(pos[s as usize]);
+            (q.dot(ea), q.dot(eb), s)
+        })
+        .filter(|p| p.0.is_finite() && p.1.is_finite())
+        .collect();
+    pts.sort_unstable_by(|p, q| p.0.total_cmp(&q.0).then(p.1.total_cmp(&q.1)));
+    pts.dedup_by_key(|p| p.2);
+    if pts.len() <= 3 {
+        return pts.iter().map(|p| p.2).collect();
+    }
+    let cross = |o: (f32, f32, u32), a: (f32, f32, u32), b: (f32, f32, u32)| {
+        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+    };
+    let mut out: Vec<(f32, f32, u32)> = Vec::with_capacity(pts.len() + 1);
+    for pass in 0..2 {
+        let base = out.len();
+        let iter: Box<dyn Iterator<Item = &(f32, f32, u32)>> = if pass == 0 {
+            Box::new(pts.iter())
+        } else {
+            Box::new(pts.iter().rev())
+        };
+        for &p in iter {
+            while out.len() >= base + 2 && cross(out[out.len() - 2], out[out.len() - 1], p) <= 0.0 {
+                out.pop();
+            }
+            out.push(p);
+        }
+        out.pop();
+    }
+    out.iter().map(|p| p.2).collect()
+}
