@@ -86,6 +86,7 @@ pub use reference::{RefParams, OPEN_MIN_A};
 pub use report::Report;
 pub use scan::Scan;
 pub use sensor::ProjectionChoice;
+pub use merge::union::Occlusion;
 pub use ssao::Estimator;
 
 /// Internals for the crate's own tests, benches, examples and fuzz targets: not part of the

@@ -19,6 +19,7 @@ pub use crate::site::world_bounds;
 use crate::config::{ComputeParams, Config};
 use crate::error::{Error, Result};
 use crate::io::dataset::Placer;
+use crate::merge::union::UnionParams;
 use crate::merge::{MergeParams, MergeStats};
 use crate::products::MergeMaps;
 use crate::progress::Observer;
@@ -49,6 +50,8 @@ pub struct ScanResult {
     pub no_sample: u64,
     /// Merge counters.
     pub merge: MergeStats,
+    /// Bent normal per point (scan-local frame), with `bent_normals`.
+    pub bent: Option<Vec<glam::Vec3>>,
 }
 
 /// The output of [`compute`].
@@ -95,6 +98,9 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         partner: &partner,
         mp: mplan.mp,
         ssao_only: prm.ssao_only,
+        union: union_params(prm, &sp, &mplan.mp),
+        occlusion: prm.occlusion,
+        bent: prm.bent_normals,
     };
     let mut sink = Collect(vec![None; n]);
     let (_, merge_s) = merge::run(&job, &inputs, &mut store, &mut sink, obs)?;
@@ -109,6 +115,7 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
                 ao: m.ao,
                 no_sample: m.no_sample,
                 merge: m.stats,
+                bent: m.bent,
             }),
             _ => Err(Error::Param(
                 "a scan was not merged (internal error)".into(),
@@ -122,6 +129,27 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         defaults_note: note,
         merge_s,
     })
+}
+
+/// The union occlusion's parameters: rays reach `t_max`, or twice the largest depth of the
+/// views at `t_max = ∞`; the thickness defaults to the SSAO radius (half the default `t_max`).
+fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> UnionParams {
+    let reach = if sp.tmax.is_finite() {
+        sp.tmax
+    } else if mp.dmax > 0.0 && mp.dmax.is_finite() {
+        2.0 * mp.dmax
+    } else {
+        100.0 * sp.radius
+    };
+    UnionParams {
+        rays: prm.rays.max(2),
+        steps: 24,
+        tmax: sp.tmax,
+        falloff: sp.falloff,
+        reach,
+        thickness: prm.thickness.unwrap_or(sp.radius),
+        seed: sp.seed,
+    }
 }
 
 /// The merge's sink of [`compute`]: every scan's values, kept.
@@ -477,6 +505,9 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
         partner: &partner,
         mp: mplan.mp,
         ssao_only: prm.ssao_only,
+        union: union_params(prm, &sp, &mplan.mp),
+        occlusion: prm.occlusion,
+        bent: prm.bent_normals,
     };
     let (read, secs) = merge::run(&job, &files, &mut store, &mut writer, obs)?;
     let stats = store.stats();
