@@ -86,7 +86,7 @@ pub struct ComputeParams {
     pub occlusion: crate::merge::union::Occlusion,
     /// Rays per point of the union occlusion and the bent normals.
     pub rays: u32,
-    /// Thickness behind observed surfaces (union); `None` = the SSAO radius.
+    /// Thickness behind observed surfaces (union); `None` = a tenth of the SSAO radius.
     pub thickness: Option<f32>,
     /// Compute each point's bent normal.
     pub bent_normals: bool,

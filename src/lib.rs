@@ -80,13 +80,13 @@ pub(crate) mod view;
 
 pub use error::{Error, Result};
 pub use falloff::Falloff;
+pub use merge::union::Occlusion;
 pub use preview::{PreviewStyle, Tone, Up};
 pub use projection::SensorModel;
 pub use reference::{RefParams, OPEN_MIN_A};
 pub use report::Report;
 pub use scan::Scan;
 pub use sensor::ProjectionChoice;
-pub use merge::union::Occlusion;
 pub use ssao::Estimator;
 
 /// Internals for the crate's own tests, benches, examples and fuzz targets: not part of the

@@ -9,8 +9,8 @@ use mvao::io::dataset::{PlaceOptions, PoseOverride};
 use mvao::io::output::ColorMode;
 use mvao::io::source::Format;
 use mvao::synth::{MeshKind, MeshSource, Registration, SceneKind, SynthOptions};
-use mvao::Occlusion;
 use mvao::Estimator;
+use mvao::Occlusion;
 use mvao::ProjectionChoice;
 use mvao::RefParams;
 use mvao::SensorModel;
@@ -120,7 +120,7 @@ pub struct MergeArgs {
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(2..=4096))]
     pub rays: u32,
     /// Depth behind an observed surface taken as solid by `--occlusion union`, metres
-    /// [default: the radius].
+    /// [default: radius / 10].
     #[arg(long)]
     pub thickness: Option<f32>,
     /// Write each point's bent normal (mean unoccluded direction) as bnx, bny, bnz.

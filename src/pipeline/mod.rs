@@ -132,7 +132,7 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
 }
 
 /// The union occlusion's parameters: rays reach `t_max`, or twice the largest depth of the
-/// views at `t_max = ∞`; the thickness defaults to the SSAO radius (half the default `t_max`).
+/// views at `t_max = ∞`; the thickness defaults to a tenth of the SSAO radius.
 fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> UnionParams {
     let reach = if sp.tmax.is_finite() {
         sp.tmax
@@ -147,7 +147,7 @@ fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> Union
         tmax: sp.tmax,
         falloff: sp.falloff,
         reach,
-        thickness: prm.thickness.unwrap_or(sp.radius),
+        thickness: prm.thickness.unwrap_or(0.1 * sp.radius),
         seed: sp.seed,
     }
 }

@@ -10,17 +10,21 @@
 //! depth of `q` in view j and `D` the depth view j stored at that pixel, `s = d − D` says:
 //!
 //! - `s < −m`: view j saw through `q` (free-space evidence);
-//! - `|s| ≤ m`, or a sign change of `s` since the previous sample with both within the depth
-//!   the ray covered in between: the ray met the surface view j observed (surface evidence,
-//!   at the interpolated crossing);
-//! - `m < s ≤ T`: behind the observed surface within the thickness `T` (inferred evidence);
+//! - a change of side since the previous sample (`s` from negative to above `m/4`), the
+//!   segment halved four times around it, with both ends within `m` plus the depth they
+//!   span of the stored surface: the ray crossed the surface view j observed (surface
+//!   evidence, at the interpolated crossing); a change with a jump in depth is the ray
+//!   passing into the shadow of a surface from the side, not a crossing;
+//! - otherwise `m/4 < s ≤ T`: behind the observed surface within the thickness `T`
+//!   (inferred evidence);
 //! - beyond, or an empty pixel, or outside the map: unknown.
 //!
-//! `m` is twice the stored point's radius (its spacing). A candidate hit is the nearest
+//! `m` is the stored point's radius (its spacing). A candidate hit is the nearest
 //! sample with surface or inferred evidence; at the candidate point every other view votes
 //! with weight `1 / rad` of its pixel (sharp near views outweigh coarse far ones): free
 //! where it saw past the point (in its pixel and the four neighbours, so a silhouette
-//! quantised by one pixel does not veto), occupied where it observed a surface there.
+//! quantised by one pixel does not veto), occupied where the point lies from `m` in front of
+//! its surface to `T` behind.
 //! Surface evidence holds when the occupied weight is at least the free weight; inferred
 //! evidence holds only where no view saw through the point (seeing through is an
 //! observation, occupancy behind a surface a guess). The ray's hit distance is the first
@@ -172,7 +176,14 @@ struct Shaded {
 }
 
 /// Whether the candidate hit at `q` by view `from` with `ev` holds against the other views.
-fn holds(lenses: &[Lens<'_>], from: usize, rad_from: f32, q: Vec3, ev: Evidence) -> bool {
+fn holds(
+    lenses: &[Lens<'_>],
+    from: usize,
+    rad_from: f32,
+    q: Vec3,
+    ev: Evidence,
+    t_occ: f32,
+) -> bool {
     let mut free = 0.0f32;
     let mut occ = 1.0 / rad_from;
     for (j, l) in lenses.iter().enumerate() {
@@ -185,11 +196,39 @@ fn holds(lenses: &[Lens<'_>], from: usize, rad_from: f32, q: Vec3, ev: Evidence)
                 return false;
             }
             free += 1.0 / r.rad;
-        } else if r.s.abs() <= 2.0 * r.rad {
+        } else if r.s >= -r.rad && r.s <= r.rad.max(t_occ) {
             occ += 1.0 / r.rad;
         }
     }
     occ >= free
+}
+
+/// Where the ray crossed view `l`'s stored surface between a sample in front of it (`a`)
+/// and one behind (`b`): the segment is halved four times around the change of side; a
+/// change between samples close in depth to the stored surface is a crossing, one with a
+/// jump (the ray passing into a shadow from the side) is not.
+fn crossing(
+    l: &Lens<'_>,
+    p: Vec3,
+    omega: Vec3,
+    mut a: (f32, Reading),
+    mut b: (f32, Reading),
+) -> Option<f32> {
+    for _ in 0..4 {
+        let tm = 0.5 * (a.0 + b.0);
+        let m = l.read(p + omega * tm)?;
+        if m.s < 0.0 {
+            a = (tm, m);
+        } else {
+            b = (tm, m);
+        }
+    }
+    let step = (b.1.d - a.1.d).abs();
+    let near = |r: &Reading| r.s.abs() <= r.rad + step;
+    (near(&a.1) && near(&b.1)).then(|| {
+        let f = (a.1.s / (a.1.s - b.1.s)).clamp(0.0, 1.0);
+        a.0 + f * (b.0 - a.0)
+    })
 }
 
 /// Distance along `omega` to the first hit that holds (`∞`: none within the reach).
@@ -211,17 +250,17 @@ fn march(lenses: &[Lens<'_>], pt: &Shaded, omega: Vec3, jit: f32, prm: &UnionPar
                 continue;
             };
             let (pj, nj) = pt.in_view[j];
+            // Behind the stored surface by more than noise: the ray crossed it since the
+            // previous sample (surface evidence at the crossing) or lies within the
+            // thickness (inferred).
             let cand = match prev[j] {
-                Some(pv) if pv.s * c.s < 0.0 && {
-                    let step = (c.d - pv.d).abs();
-                    c.s.abs() <= 2.0 * c.rad + step && pv.s.abs() <= 2.0 * pv.rad + step
-                } =>
-                {
-                    let f = (pv.s / (pv.s - c.s)).clamp(0.0, 1.0);
-                    Some((t_prev + f * (t - t_prev), Evidence::Surface))
-                }
-                _ if c.s.abs() <= 2.0 * c.rad => Some((t, Evidence::Surface)),
-                _ if c.s > 0.0 && c.s <= prm.thickness => Some((t, Evidence::Inferred)),
+                _ if c.s <= 0.25 * c.rad => None,
+                Some(pv) if pv.s < 0.0 => match crossing(l, pt.p, omega, (t_prev, pv), (t, c)) {
+                    Some(tc) => Some((tc, Evidence::Surface)),
+                    None if c.s <= prm.thickness => Some((t, Evidence::Inferred)),
+                    None => None,
+                },
+                _ if c.s <= prm.thickness => Some((t, Evidence::Inferred)),
                 _ => None,
             };
             prev[j] = cur;
@@ -234,7 +273,7 @@ fn march(lenses: &[Lens<'_>], pt: &Shaded, omega: Vec3, jit: f32, prm: &UnionPar
             }
         }
         if let Some((tc, j, rad, ev)) = best {
-            if holds(lenses, j, rad, pt.p + omega * tc, ev) {
+            if holds(lenses, j, rad, pt.p + omega * tc, ev, prm.thickness) {
                 return tc;
             }
         }
@@ -264,7 +303,8 @@ fn shade(lenses: &[Lens<'_>], pt: &Shaded, stream: u64, prm: &UnionParams) -> (f
         let (sr, cz) = (u1.sqrt(), (1.0 - u1).max(0.0).sqrt());
         for side in [1.0f32, -1.0] {
             let (s, c) = phi.sin_cos();
-            let omega = (t1 * (side * sr * c) + t2 * (side * sr * s) + pt.n * cz).normalize_or_zero();
+            let omega =
+                (t1 * (side * sr * c) + t2 * (side * sr * s) + pt.n * cz).normalize_or_zero();
             let th = march(lenses, pt, omega, rng.next_f32(), prm);
             let v = prm.falloff.rho(th, prm.tmax);
             sum += v;
@@ -315,10 +355,7 @@ pub fn union_scan(
         .map(|i| {
             let own = t.fallback.get(i).copied().unwrap_or(1.0);
             let px = t.own_pixel[i];
-            let Some(rest) = (px != EMPTY)
-                .then(|| t.own.rest.get(px as usize))
-                .flatten()
-            else {
+            let Some(rest) = (px != EMPTY).then(|| t.own.rest.get(px as usize)).flatten() else {
                 return (own, Vec3::ZERO);
             };
             let n = Vec3::new(rest[0], rest[1], rest[2]).normalize_or_zero();
