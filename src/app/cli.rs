@@ -116,16 +116,13 @@ pub struct MergeArgs {
     /// through every overlapping view's geometry (`union`).
     #[arg(long, value_enum, default_value_t = Occlusion::Average)]
     pub occlusion: Occlusion,
-    /// Rays per point of `--occlusion union` and `--bent-normals`.
+    /// Rays per point of `--occlusion union`.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(2..=4096))]
     pub rays: u32,
     /// Depth behind an observed surface taken as solid by `--occlusion union`, metres
     /// [default: radius / 10].
     #[arg(long)]
     pub thickness: Option<f32>,
-    /// Write each point's bent normal (mean unoccluded direction) as bnx, bny, bnz.
-    #[arg(long)]
-    pub bent_normals: bool,
     /// What happens to input colours.
     #[arg(long, value_enum, default_value_t = ColorMode::Modulate)]
     pub color: ColorMode,
@@ -618,7 +615,7 @@ impl MergeArgs {
                 occlusion: self.occlusion,
                 rays: self.rays,
                 thickness: self.thickness,
-                bent_normals: self.bent_normals,
+                bent_normals: false,
             },
             gamma: self.gamma,
             color: self.color,
