@@ -41,7 +41,7 @@ mod tests;
 use super::{View, ViewMaps};
 use crate::falloff::Falloff;
 use crate::gbuffer::EMPTY;
-use crate::projection::{floor_i64, Projection};
+use crate::projection::{floor_i64, Model, Projection};
 use crate::rng::Rng;
 use glam::{Affine3A, DMat4, Vec3, Vec3A};
 use rayon::prelude::*;
@@ -107,7 +107,13 @@ impl Lens<'_> {
         if near.w == f32::NEG_INFINITY {
             return None;
         }
-        let d = self.proj.project(near.truncate())?.depth;
+        // The depth `project` gives, without the angles: the distance to the sensor, or the
+        // distance along an orthographic view's axis.
+        let p = near.truncate();
+        let d = match self.proj.model {
+            Model::Ortho { toward, depth0, .. } => depth0 - toward.dot(p),
+            _ => p.length(),
+        };
         Some((d, near.w.max(1e-6)))
     }
 
