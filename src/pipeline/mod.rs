@@ -369,10 +369,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer) -> Result<Report> {
     Ok(report)
 }
 
-/// The stages `cfg` asks for over the input files and the work directory. `keep_values`
-/// keeps each merged scan's values in memory.
-pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcome> {
-    let placer = Placer::new(&cfg.scans, &cfg.place)?;
+/// The output and work directories are directories where they exist.
+fn check_dirs(cfg: &Config) -> Result<()> {
     for (d, flag) in [
         (Some(&cfg.out_dir), "-o"),
         (cfg.work_dir.as_ref(), "--work"),
@@ -384,6 +382,14 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
             )));
         }
     }
+    Ok(())
+}
+
+/// The stages `cfg` asks for over the input files and the work directory. `keep_values`
+/// keeps each merged scan's values in memory.
+pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcome> {
+    let placer = Placer::new(&cfg.scans, &cfg.place)?;
+    check_dirs(cfg)?;
     let budget = cfg.max_memory.unwrap_or_else(crate::sys::default_budget);
     let (mut cat, mut files) = catalog::from_files(cfg, &placer, budget, obs)?;
     let (refs, planned_outputs) = check_before_work(cfg, &cat)?;
