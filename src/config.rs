@@ -82,6 +82,14 @@ pub struct ComputeParams {
     pub blur: bool,
     /// Skip the merge (MVAO = own SSAO).
     pub ssao_only: bool,
+    /// How the merge combines the views.
+    pub occlusion: crate::merge::union::Occlusion,
+    /// Rays per point of the union occlusion and the bent normals.
+    pub rays: u32,
+    /// Thickness behind observed surfaces (union); `None` = a tenth of the SSAO radius.
+    pub thickness: Option<f32>,
+    /// Compute each point's bent normal.
+    pub bent_normals: bool,
 }
 
 impl Default for ComputeParams {
@@ -102,6 +110,10 @@ impl Default for ComputeParams {
             estimator: Estimator::Horizon,
             blur: true,
             ssao_only: false,
+            occlusion: crate::merge::union::Occlusion::Average,
+            rays: 32,
+            thickness: None,
+            bent_normals: false,
         }
     }
 }

@@ -80,6 +80,7 @@ pub(crate) mod view;
 
 pub use error::{Error, Result};
 pub use falloff::Falloff;
+pub use merge::union::Occlusion;
 pub use preview::{PreviewStyle, Tone, Up};
 pub use projection::SensorModel;
 pub use reference::{RefParams, OPEN_MIN_A};

@@ -116,3 +116,42 @@ fn ssao_only_is_the_own_view_in_both_stores() {
         assert_eq!(r["scans"][i]["point_views"], 0);
     }
 }
+
+#[test]
+fn union_occlusion_is_the_same_in_both_stores() {
+    let d = tempfile::tempdir().unwrap();
+    let scans = synth_room(&d.path().join("site"), 3, 160, 80);
+    let ds = Dataset::open(&scans, &PlaceOptions::default(), &|| {}).unwrap();
+    let prm = ComputeParams {
+        radius: Some(0.2),
+        tmax: Some(0.4),
+        seed: 5,
+        occlusion: mvao::Occlusion::Union,
+        rays: 4,
+        ..Default::default()
+    };
+    let mem = pipeline::compute(&ds.scans, &prm, &Silent).unwrap();
+    let extra = ["--occlusion", "union", "--rays", "4"];
+    let (all, _) = merged(&scans, &d.path().join("all"), &extra);
+    let mut tight = extra.to_vec();
+    tight.extend(["--max-memory", "20M"]);
+    let (few, r) = merged(&scans, &d.path().join("few"), &tight);
+    assert!(r["map_loads"].as_u64().unwrap() > 0, "{}", r["map_loads"]);
+    for (i, s) in mem.scans.iter().enumerate() {
+        assert!(s
+            .ao
+            .iter()
+            .all(|a| a.is_finite() && (0.0..=1.0).contains(a)));
+        assert_eq!(bits(&s.ao), bits(&all[i]), "scan {i}, memory vs merge");
+        assert_eq!(
+            bits(&s.ao),
+            bits(&few[i]),
+            "scan {i}, memory vs tight merge"
+        );
+        assert_ne!(
+            bits(&s.ao),
+            bits(&s.ssao),
+            "scan {i}: the union changed nothing"
+        );
+    }
+}

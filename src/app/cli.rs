@@ -10,6 +10,7 @@ use mvao::io::output::ColorMode;
 use mvao::io::source::Format;
 use mvao::synth::{MeshKind, MeshSource, Registration, SceneKind, SynthOptions};
 use mvao::Estimator;
+use mvao::Occlusion;
 use mvao::ProjectionChoice;
 use mvao::RefParams;
 use mvao::SensorModel;
@@ -111,6 +112,17 @@ pub struct MergeArgs {
     /// Write each scan's single-view SSAO instead of the multi-view merge.
     #[arg(long)]
     pub ssao_only: bool,
+    /// How views combine: `average` their finished AO per point, or march each point's rays
+    /// through every overlapping view's geometry (`union`).
+    #[arg(long, value_enum, default_value_t = Occlusion::Average)]
+    pub occlusion: Occlusion,
+    /// Rays per point of `--occlusion union`.
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(2..=4096))]
+    pub rays: u32,
+    /// Depth behind an observed surface taken as solid by `--occlusion union`, metres
+    /// [default: radius / 10].
+    #[arg(long)]
+    pub thickness: Option<f32>,
     /// What happens to input colours.
     #[arg(long, value_enum, default_value_t = ColorMode::Modulate)]
     pub color: ColorMode,
@@ -565,6 +577,11 @@ impl MergeArgs {
                 return Err(format!("--dmin {a} must be below --dmax {b}"));
             }
         }
+        if let Some(t) = self.thickness {
+            if !(t > 0.0 && t.is_finite()) {
+                return Err(format!("--thickness must be positive metres, got {t}"));
+            }
+        }
         if !(self.gamma > 0.0 && self.gamma.is_finite()) {
             return Err(format!("--gamma must be positive, got {}", self.gamma));
         }
@@ -595,6 +612,10 @@ impl MergeArgs {
                 estimator: self.estimator,
                 blur: !self.no_blur,
                 ssao_only: self.ssao_only,
+                occlusion: self.occlusion,
+                rays: self.rays,
+                thickness: self.thickness,
+                bent_normals: false,
             },
             gamma: self.gamma,
             color: self.color,

@@ -6,6 +6,7 @@
 
 pub mod border;
 pub mod cull;
+pub mod union;
 pub mod visible;
 pub mod weights;
 

@@ -5,6 +5,7 @@
 use super::catalog::{Inputs, Opened};
 use crate::error::{Error, Result};
 use crate::merge::cull::PointCells;
+use crate::merge::union::{union_scan, Occlusion, UnionParams, UnionTarget};
 use crate::merge::{self, Accum, MergeParams, MergeStats, Target};
 use crate::products::MergeMaps;
 use crate::progress::Observer;
@@ -36,6 +37,8 @@ pub struct Merged {
     pub no_sample: u64,
     /// Merge counters.
     pub stats: MergeStats,
+    /// Bent normal per point (scan-local frame), when asked for.
+    pub bent: Option<Vec<glam::Vec3>>,
 }
 
 /// Where the merged scans go.
@@ -69,6 +72,12 @@ pub struct MergeJob<'a> {
     pub mp: MergeParams,
     /// Keep each scan's own SSAO instead of merging.
     pub ssao_only: bool,
+    /// Union occlusion parameters; with `occlusion` union they replace the average.
+    pub union: UnionParams,
+    /// How the views are combined.
+    pub occlusion: Occlusion,
+    /// Compute bent normals (by the union's rays, in either mode).
+    pub bent: bool,
 }
 
 /// Merges the selected scans file by file into `sink`. Returns the bytes of inputs and
@@ -127,11 +136,22 @@ pub fn run(
             // The own maps come through the store: they are other scans' partner maps too.
             let own = store.maps(i, s.pose, &job.mp)?;
             let (ssao, no_sample) = point_values(&pts.pixel, &own.ao, &own.no_sample);
-            let (ao, stats) = if job.ssao_only {
+            let union = !job.ssao_only && job.occlusion == Occlusion::Union;
+            let (mut ao, stats) = if job.ssao_only {
                 (ssao.clone(), MergeStats::default())
+            } else if union {
+                (Vec::new(), MergeStats::default())
             } else {
                 merge_one(job, i, s, &pts.radii, &pts.pixel, &ssao, &own, store)?
             };
+            let mut bent = None;
+            if union || job.bent {
+                let (u, b) = union_one(job, i, s, &pts.radii, &pts.pixel, &ssao, &own, store)?;
+                if union {
+                    ao = u;
+                }
+                bent = b;
+            }
             obs.advance(s.len() as u64);
             let m = Merged {
                 index: i,
@@ -139,6 +159,7 @@ pub fn run(
                 ao,
                 no_sample,
                 stats,
+                bent,
             };
             let sum = store.summary(i)?;
             sink.scan(s, &m, &own, &sum)?;
@@ -189,4 +210,44 @@ fn merge_one(
         merge::accumulate(&mut acc, &t, j, &v, &job.mp, &|_| {});
     }
     Ok(acc.finish(own_ssao))
+}
+
+/// Scan `i`'s union occlusion (and bent normals when asked for) against its own view and
+/// every partner's, all held at once: the rays cross every view that overlaps a point.
+#[allow(clippy::too_many_arguments)]
+fn union_one(
+    job: &MergeJob<'_>,
+    i: usize,
+    s: &Scan,
+    radii: &[f32],
+    pixel: &[u32],
+    own_ssao: &[f32],
+    own: &std::sync::Arc<MergeMaps>,
+    store: &mut dyn ViewStore,
+) -> Result<(Vec<f32>, Option<Vec<glam::Vec3>>)> {
+    let mut held = Vec::new();
+    for j in (0..job.cat.len()).filter(|&j| (job.partner)(i, j)) {
+        if j == i {
+            held.push((s.pose, own.clone()));
+        } else {
+            let pose = job.cat[j].pose;
+            held.push((pose, store.maps(j, pose, &job.mp)?));
+        }
+    }
+    let internal = || Error::Param("maps used before placing (internal error)".into());
+    let views = held
+        .iter()
+        .map(|(pose, m)| m.view(*pose).ok_or_else(internal))
+        .collect::<Result<Vec<_>>>()?;
+    let own_maps = own.view(s.pose).ok_or_else(internal)?.maps;
+    let t = UnionTarget {
+        index: i,
+        points: &s.points,
+        radii,
+        own_pixel: pixel,
+        own: own_maps,
+        pose: s.pose,
+        fallback: own_ssao,
+    };
+    Ok(union_scan(&t, &views, &job.union, job.bent))
 }

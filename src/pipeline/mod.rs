@@ -19,6 +19,7 @@ pub use crate::site::world_bounds;
 use crate::config::{ComputeParams, Config};
 use crate::error::{Error, Result};
 use crate::io::dataset::Placer;
+use crate::merge::union::UnionParams;
 use crate::merge::{MergeParams, MergeStats};
 use crate::products::MergeMaps;
 use crate::progress::Observer;
@@ -49,6 +50,8 @@ pub struct ScanResult {
     pub no_sample: u64,
     /// Merge counters.
     pub merge: MergeStats,
+    /// Bent normal per point (scan-local frame), with `bent_normals`.
+    pub bent: Option<Vec<glam::Vec3>>,
 }
 
 /// The output of [`compute`].
@@ -95,6 +98,9 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         partner: &partner,
         mp: mplan.mp,
         ssao_only: prm.ssao_only,
+        union: union_params(prm, &sp, &mplan.mp),
+        occlusion: prm.occlusion,
+        bent: prm.bent_normals,
     };
     let mut sink = Collect(vec![None; n]);
     let (_, merge_s) = merge::run(&job, &inputs, &mut store, &mut sink, obs)?;
@@ -109,6 +115,7 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
                 ao: m.ao,
                 no_sample: m.no_sample,
                 merge: m.stats,
+                bent: m.bent,
             }),
             _ => Err(Error::Param(
                 "a scan was not merged (internal error)".into(),
@@ -122,6 +129,27 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         defaults_note: note,
         merge_s,
     })
+}
+
+/// The union occlusion's parameters: rays reach `t_max`, or twice the largest depth of the
+/// views at `t_max = ∞`; the thickness defaults to a tenth of the SSAO radius.
+fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> UnionParams {
+    let reach = if sp.tmax.is_finite() {
+        sp.tmax
+    } else if mp.dmax > 0.0 && mp.dmax.is_finite() {
+        2.0 * mp.dmax
+    } else {
+        100.0 * sp.radius
+    };
+    UnionParams {
+        rays: prm.rays.max(2),
+        steps: 24,
+        tmax: sp.tmax,
+        falloff: sp.falloff,
+        reach,
+        thickness: prm.thickness.unwrap_or(0.1 * sp.radius),
+        seed: sp.seed,
+    }
 }
 
 /// The merge's sink of [`compute`]: every scan's values, kept.
@@ -341,10 +369,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer) -> Result<Report> {
     Ok(report)
 }
 
-/// The stages `cfg` asks for over the input files and the work directory. `keep_values`
-/// keeps each merged scan's values in memory.
-pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcome> {
-    let placer = Placer::new(&cfg.scans, &cfg.place)?;
+/// The output and work directories are directories where they exist.
+fn check_dirs(cfg: &Config) -> Result<()> {
     for (d, flag) in [
         (Some(&cfg.out_dir), "-o"),
         (cfg.work_dir.as_ref(), "--work"),
@@ -356,6 +382,14 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
             )));
         }
     }
+    Ok(())
+}
+
+/// The stages `cfg` asks for over the input files and the work directory. `keep_values`
+/// keeps each merged scan's values in memory.
+pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<Outcome> {
+    let placer = Placer::new(&cfg.scans, &cfg.place)?;
+    check_dirs(cfg)?;
     let budget = cfg.max_memory.unwrap_or_else(crate::sys::default_budget);
     let (mut cat, mut files) = catalog::from_files(cfg, &placer, budget, obs)?;
     let (refs, planned_outputs) = check_before_work(cfg, &cat)?;
@@ -477,6 +511,9 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
         partner: &partner,
         mp: mplan.mp,
         ssao_only: prm.ssao_only,
+        union: union_params(prm, &sp, &mplan.mp),
+        occlusion: prm.occlusion,
+        bent: prm.bent_normals,
     };
     let (read, secs) = merge::run(&job, &files, &mut store, &mut writer, obs)?;
     let stats = store.stats();

@@ -1,0 +1,406 @@
+//! Union occlusion: a point's occlusion evaluated against the geometry of every view that
+//! overlaps it, direction by direction, instead of averaging the views' finished AO values.
+//!
+//! For a point `p` with normal `n`, `rays` cosine-weighted directions `ω` (stratified in
+//! elevation, a golden-angle lattice in azimuth turned per point by the seeded generator,
+//! and paired with their mirror `φ + π` so an open plane's mean direction is exactly `n`)
+//! are marched from `p` out to the reach (`t_max`, or the scene's extent at `t_max = ∞`),
+//! `steps` samples per ray spaced quadratically (finer near `p`, where ρ changes fastest).
+//! Each sample `q` is projected into every view `j` whose map holds `p`'s image; with `d` the
+//! depth of `q` in view j and `D` the depth view j stored at that pixel, `s = d − D` says:
+//!
+//! - `s < −m`: view j saw through `q` (free-space evidence);
+//! - a change of side since the previous sample (`s` from negative to above `m/4`), the
+//!   segment halved four times around it, with both ends within `m` plus the depth they
+//!   span of the stored surface: the ray crossed the surface view j observed (surface
+//!   evidence, at the interpolated crossing); a change with a jump in depth is the ray
+//!   passing into the shadow of a surface from the side, not a crossing;
+//! - otherwise `m/4 < s ≤ T`: behind the observed surface within the thickness `T`
+//!   (inferred evidence);
+//! - beyond, or an empty pixel, or outside the map: unknown.
+//!
+//! `m` is the stored point's radius (its spacing). A candidate hit is the nearest
+//! sample with surface or inferred evidence; at the candidate point every other view votes
+//! with weight `1 / rad` of its pixel (sharp near views outweigh coarse far ones): free
+//! where it saw past the point (in its pixel and the four neighbours, so a silhouette
+//! quantised by one pixel does not veto), occupied where the point lies from `m` in front of
+//! its surface to `T` behind.
+//! Surface evidence holds when the occupied weight is at least the free weight; inferred
+//! evidence holds only where no view saw through the point (seeing through is an
+//! observation, occupancy behind a surface a guess). The ray's hit distance is the first
+//! candidate that holds; `A(p)` is the mean of `ρ(t_hit)` over the rays.
+//!
+//! Same-surface rule: evidence from a pixel whose stored point lies within
+//! `h₀ = 2 (rad(p) + rad)` of `p`'s tangent plane with a normal within 60° of `n` is `p`'s
+//! own surface as that view sampled it (with its noise and registration error), and is
+//! ignored; a wall meeting the surface (a normal far from `n`) still counts.
+
+#[cfg(test)]
+mod tests;
+
+use super::{View, ViewMaps};
+use crate::falloff::Falloff;
+use crate::gbuffer::EMPTY;
+use crate::projection::{floor_i64, Model, Projection};
+use crate::rng::Rng;
+use glam::{Affine3A, DMat4, Vec3, Vec3A};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// How the merge combines the views.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Occlusion {
+    /// The views' finished AO averaged at each point (eq. 6–12).
+    #[default]
+    Average,
+    /// Each point's rays marched through every overlapping view's geometry.
+    Union,
+}
+
+/// Parameters of the union occlusion.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct UnionParams {
+    /// Rays per point (rounded up to even).
+    pub rays: u32,
+    /// Samples per ray.
+    pub steps: u32,
+    /// Falloff distance of ρ (`f32::INFINITY` allowed).
+    #[serde(serialize_with = "crate::falloff::serialize_tmax")]
+    pub tmax: f32,
+    /// Shape of ρ.
+    pub falloff: Falloff,
+    /// How far rays are marched (finite: `t_max`, or the scene's extent).
+    pub reach: f32,
+    /// Thickness `T` behind an observed surface taken as solid.
+    pub thickness: f32,
+    /// Seed of the per-point direction patterns.
+    pub seed: u64,
+}
+
+/// One view as the rays see it: its maps and the transform from the target's frame.
+struct Lens<'a> {
+    proj: &'a Projection,
+    maps: &'a ViewMaps,
+    rel: Affine3A,
+}
+
+/// What one view says about a 3-D point.
+#[derive(Debug, Clone, Copy)]
+struct Reading {
+    /// Depth of the point minus the stored depth at its pixel.
+    s: f32,
+    /// Depth of the point in the view.
+    d: f32,
+    /// Radius of the stored point.
+    rad: f32,
+    /// Pixel index and continuous pixel position.
+    idx: usize,
+    px: (i64, i64),
+}
+
+impl Lens<'_> {
+    /// Depth of the point stored at pixel `idx`, and its radius (`None`: empty).
+    #[inline]
+    fn stored(&self, idx: usize) -> Option<(f32, f32)> {
+        let near = self.maps.near.get(idx)?;
+        if near.w == f32::NEG_INFINITY {
+            return None;
+        }
+        // The depth `project` gives, without the angles: the distance to the sensor, or the
+        // distance along an orthographic view's axis.
+        let p = near.truncate();
+        let d = match self.proj.model {
+            Model::Ortho { toward, depth0, .. } => depth0 - toward.dot(p),
+            _ => p.length(),
+        };
+        Some((d, near.w.max(1e-6)))
+    }
+
+    /// The view's reading at `q` (target frame).
+    #[inline]
+    fn read(&self, q: Vec3) -> Option<Reading> {
+        let qj: Vec3 = self.rel.transform_point3a(Vec3A::from(q)).into();
+        let pr = self.proj.project(qj)?;
+        if !pr.depth.is_finite() {
+            return None;
+        }
+        let px = (floor_i64(pr.x), floor_i64(pr.y));
+        let idx = self.proj.pixel_at(px.0, px.1)?;
+        let (dd, rad) = self.stored(idx)?;
+        Some(Reading {
+            s: pr.depth - dd,
+            d: pr.depth,
+            rad,
+            idx,
+            px,
+        })
+    }
+
+    /// Whether the view saw past `r`'s point in its pixel and the four neighbours.
+    fn sees_through(&self, r: &Reading) -> bool {
+        if r.s >= -2.0 * r.rad {
+            return false;
+        }
+        [(1, 0), (-1, 0), (0, 1), (0, -1)].iter().all(|&(dx, dy)| {
+            match self
+                .proj
+                .pixel_at(r.px.0 + dx, r.px.1 + dy)
+                .and_then(|i| self.stored(i))
+            {
+                Some((dd, rad)) => r.d < dd - 2.0 * rad,
+                None => true,
+            }
+        })
+    }
+
+    /// Whether the stored point of pixel `idx` is `p`'s own surface (see the module docs);
+    /// `p`, `n` are in the view's frame.
+    fn same_surface(&self, idx: usize, p: Vec3, n: Vec3, rad_p: f32) -> bool {
+        let (Some(near), Some(rest)) = (self.maps.near.get(idx), self.maps.rest.get(idx)) else {
+            return false;
+        };
+        let nj = Vec3::new(rest[0], rest[1], rest[2]);
+        let h0 = 2.0 * (rad_p + near.w.max(0.0));
+        nj.dot(n) > 0.5 && (near.truncate() - p).dot(n).abs() < h0
+    }
+}
+
+/// Kinds of evidence for a hit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Evidence {
+    Surface,
+    Inferred,
+}
+
+/// The point being shaded, in its own frame and in each view's.
+struct Shaded {
+    p: Vec3,
+    n: Vec3,
+    rad: f32,
+    in_view: Vec<(Vec3, Vec3)>,
+}
+
+/// Whether the candidate hit at `q` by view `from` with `ev` holds against the other views.
+fn holds(
+    lenses: &[Lens<'_>],
+    from: usize,
+    rad_from: f32,
+    q: Vec3,
+    ev: Evidence,
+    t_occ: f32,
+) -> bool {
+    let mut free = 0.0f32;
+    let mut occ = 1.0 / rad_from;
+    for (j, l) in lenses.iter().enumerate() {
+        if j == from {
+            continue;
+        }
+        let Some(r) = l.read(q) else { continue };
+        if l.sees_through(&r) {
+            if ev == Evidence::Inferred {
+                return false;
+            }
+            free += 1.0 / r.rad;
+        } else if r.s >= -r.rad && r.s <= r.rad.max(t_occ) {
+            occ += 1.0 / r.rad;
+        }
+    }
+    occ >= free
+}
+
+/// Where the ray crossed view `l`'s stored surface between a sample in front of it (`a`)
+/// and one behind (`b`): the segment is halved four times around the change of side; a
+/// change between samples close in depth to the stored surface is a crossing, one with a
+/// jump (the ray passing into a shadow from the side) is not.
+fn crossing(
+    l: &Lens<'_>,
+    p: Vec3,
+    omega: Vec3,
+    mut a: (f32, Reading),
+    mut b: (f32, Reading),
+) -> Option<f32> {
+    for _ in 0..4 {
+        let tm = 0.5 * (a.0 + b.0);
+        let m = l.read(p + omega * tm)?;
+        if m.s < 0.0 {
+            a = (tm, m);
+        } else {
+            b = (tm, m);
+        }
+    }
+    let step = (b.1.d - a.1.d).abs();
+    let near = |r: &Reading| r.s.abs() <= r.rad + step;
+    (near(&a.1) && near(&b.1)).then(|| {
+        let f = (a.1.s / (a.1.s - b.1.s)).clamp(0.0, 1.0);
+        a.0 + f * (b.0 - a.0)
+    })
+}
+
+/// Distance along `omega` to the first hit that holds (`∞`: none within the reach).
+fn march(lenses: &[Lens<'_>], pt: &Shaded, omega: Vec3, jit: f32, prm: &UnionParams) -> f32 {
+    let steps = prm.steps.max(1);
+    let t0 = pt.rad;
+    let span = (prm.reach - t0).max(0.0);
+    let mut prev: Vec<Option<Reading>> = vec![None; lenses.len()];
+    let mut t_prev = 0.0f32;
+    for k in 0..steps {
+        let u = (k as f32 + jit) / steps as f32;
+        let t = t0 + span * u * u;
+        let q = pt.p + omega * t;
+        let mut best: Option<(f32, usize, f32, Evidence)> = None;
+        for (j, l) in lenses.iter().enumerate() {
+            let cur = l.read(q);
+            let Some(c) = cur else {
+                prev[j] = None;
+                continue;
+            };
+            let (pj, nj) = pt.in_view[j];
+            // Behind the stored surface by more than noise: the ray crossed it since the
+            // previous sample (surface evidence at the crossing) or lies within the
+            // thickness (inferred).
+            let cand = match prev[j] {
+                _ if c.s <= 0.25 * c.rad => None,
+                Some(pv) if pv.s < 0.0 => match crossing(l, pt.p, omega, (t_prev, pv), (t, c)) {
+                    Some(tc) => Some((tc, Evidence::Surface)),
+                    None if c.s <= prm.thickness => Some((t, Evidence::Inferred)),
+                    None => None,
+                },
+                _ if c.s <= prm.thickness => Some((t, Evidence::Inferred)),
+                _ => None,
+            };
+            prev[j] = cur;
+            let Some((tc, ev)) = cand else { continue };
+            if l.same_surface(c.idx, pj, nj, pt.rad) {
+                continue;
+            }
+            if best.is_none_or(|b| tc < b.0) {
+                best = Some((tc, j, c.rad, ev));
+            }
+        }
+        if let Some((tc, j, rad, ev)) = best {
+            if holds(lenses, j, rad, pt.p + omega * tc, ev, prm.thickness) {
+                return tc;
+            }
+        }
+        t_prev = t;
+    }
+    f32::INFINITY
+}
+
+/// An orthonormal tangent frame of unit `n`.
+fn frame(n: Vec3) -> (Vec3, Vec3) {
+    let a = if n.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+    let t1 = n.cross(a).normalize_or_zero();
+    (t1, n.cross(t1))
+}
+
+/// Occlusion of one point and its bent normal (its frame; zero when every ray is blocked).
+fn shade(lenses: &[Lens<'_>], pt: &Shaded, stream: u64, prm: &UnionParams) -> (f32, Vec3) {
+    let half = prm.rays.div_ceil(2).max(1);
+    let mut rng = Rng::new(prm.seed, stream);
+    let turn = rng.next_f32();
+    let (t1, t2) = frame(pt.n);
+    const GOLDEN: f32 = 0.618_034;
+    let (mut sum, mut bent) = (0.0f32, Vec3::ZERO);
+    for r in 0..half {
+        let u1 = (r as f32 + rng.next_f32()) / half as f32;
+        let phi = std::f32::consts::TAU * (r as f32 * GOLDEN + turn).fract();
+        let (sr, cz) = (u1.sqrt(), (1.0 - u1).max(0.0).sqrt());
+        for side in [1.0f32, -1.0] {
+            let (s, c) = phi.sin_cos();
+            let omega =
+                (t1 * (side * sr * c) + t2 * (side * sr * s) + pt.n * cz).normalize_or_zero();
+            let th = march(lenses, pt, omega, rng.next_f32(), prm);
+            let v = prm.falloff.rho(th, prm.tmax);
+            sum += v;
+            bent += omega * v;
+        }
+    }
+    let a = sum / (2 * half) as f32;
+    (a.clamp(0.0, 1.0), bent.normalize_or_zero())
+}
+
+/// The scan being shaded by [`union_scan`].
+pub struct UnionTarget<'a> {
+    /// Index of the scan (seeds its directions).
+    pub index: usize,
+    /// Local points.
+    pub points: &'a [Vec3],
+    /// Radius per point.
+    pub radii: &'a [f32],
+    /// Pixel of each point in its own map ([`EMPTY`] if outside).
+    pub own_pixel: &'a [u32],
+    /// Its own view's maps (normals of the points).
+    pub own: &'a ViewMaps,
+    /// Local → world.
+    pub pose: DMat4,
+    /// Fallback AO of points outside their own map.
+    pub fallback: &'a [f32],
+}
+
+/// Union occlusion of every point of `t` against `views` (its own among them), and each
+/// point's bent normal in its scan's local frame when `bent` is set.
+pub fn union_scan(
+    t: &UnionTarget<'_>,
+    views: &[View<'_>],
+    prm: &UnionParams,
+    bent: bool,
+) -> (Vec<f32>, Option<Vec<Vec3>>) {
+    let lenses: Vec<Lens<'_>> = views
+        .iter()
+        .map(|v| Lens {
+            proj: v.proj,
+            maps: v.maps,
+            rel: Affine3A::from_mat4((v.pose.inverse() * t.pose).as_mat4()),
+        })
+        .collect();
+    let res: Vec<(f32, Vec3)> = (0..t.points.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| {
+            let own = t.fallback.get(i).copied().unwrap_or(1.0);
+            let px = t.own_pixel[i];
+            let Some(rest) = (px != EMPTY).then(|| t.own.rest.get(px as usize)).flatten() else {
+                return (own, Vec3::ZERO);
+            };
+            let n = Vec3::new(rest[0], rest[1], rest[2]).normalize_or_zero();
+            if n == Vec3::ZERO {
+                return (own, Vec3::ZERO);
+            }
+            let p = t.points[i];
+            let rad = t.radii.get(i).copied().unwrap_or(0.0).max(0.0);
+            // Only the views that hold the point's image: the others saw nothing around it.
+            let mine: Vec<usize> = (0..lenses.len())
+                .filter(|&j| lenses[j].read(p).is_some())
+                .collect();
+            let sub: Vec<Lens<'_>> = mine
+                .iter()
+                .map(|&j| Lens {
+                    proj: lenses[j].proj,
+                    maps: lenses[j].maps,
+                    rel: lenses[j].rel,
+                })
+                .collect();
+            let in_view = sub
+                .iter()
+                .map(|l| {
+                    let pj: Vec3 = l.rel.transform_point3a(Vec3A::from(p)).into();
+                    let nj: Vec3 = l.rel.transform_vector3a(Vec3A::from(n)).into();
+                    (pj, nj)
+                })
+                .collect();
+            let pt = Shaded {
+                p: p + n * (0.5 * rad),
+                n,
+                rad,
+                in_view,
+            };
+            let stream = ((t.index as u64) << 40) ^ i as u64;
+            shade(&sub, &pt, stream, prm)
+        })
+        .collect();
+    let ao = res.iter().map(|r| r.0).collect();
+    let bn = bent.then(|| res.iter().map(|r| r.1).collect());
+    (ao, bn)
+}

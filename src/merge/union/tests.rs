@@ -1,0 +1,254 @@
+//! Union occlusion against analytic ground truth: synthetic stations of small scenes, the
+//! truth ray-cast against the exact primitives.
+
+use super::*;
+use crate::config::ComputeParams;
+use crate::pipeline::{compute, ScanResult};
+use crate::progress::Silent;
+use crate::synth::{scan_with_truth, Prim, Scene, Station, Truth};
+use glam::DVec3;
+
+/// Runs the stations of `scene` through the in-memory pipeline.
+fn run(
+    scene: &Scene,
+    stations: &[Station],
+    radius: f32,
+    tmax: f32,
+    occlusion: Occlusion,
+    bent: bool,
+) -> (Vec<ScanResult>, Vec<Vec<Truth>>) {
+    let (scans, truth): (Vec<_>, Vec<_>) = stations
+        .iter()
+        .enumerate()
+        .map(|(k, s)| scan_with_truth(scene, s, 0.0, 1, &format!("s{k}")))
+        .unzip();
+    let prm = ComputeParams {
+        radius: Some(radius),
+        tmax: Some(tmax),
+        occlusion,
+        rays: 64,
+        bent_normals: bent,
+        ..ComputeParams::default()
+    };
+    let c = compute(&scans, &prm, &Silent).expect("compute");
+    (c.scans, truth)
+}
+
+/// Ray-cast obscurance (smoothstep ρ) of the exact surface point `t` against `scene`.
+fn truth_ao(scene: &Scene, t: &Truth, tmax: f64) -> f64 {
+    let n = t.n;
+    let a = if n.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
+    let t1 = n.cross(a).normalize();
+    let t2 = n.cross(t1);
+    let (k1, k2) = (32, 32);
+    let mut sum = 0.0;
+    for i in 0..k1 {
+        for j in 0..k2 {
+            let u1 = (i as f64 + 0.5) / k1 as f64;
+            let phi = std::f64::consts::TAU * (j as f64 + 0.5) / k2 as f64;
+            let r = u1.sqrt();
+            let d = t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + n * (1.0 - u1).sqrt();
+            let hit = scene.intersect_range(t.p + n * 1e-6, d, 1e-9, tmax);
+            sum += match hit {
+                Some(h) => {
+                    let x = (h.t / tmax).clamp(0.0, 1.0);
+                    x * x * (3.0 - 2.0 * x)
+                }
+                None => 1.0,
+            };
+        }
+    }
+    sum / (k1 * k2) as f64
+}
+
+/// Mean of (estimate − truth) and of the estimate over the points of scan 0 picked by `pick`.
+fn score(
+    scene: &Scene,
+    truth: &[Truth],
+    est: &[f32],
+    tmax: f64,
+    pick: impl Fn(&Truth) -> bool,
+) -> (f64, f64, usize) {
+    let idx: Vec<usize> = (0..truth.len()).filter(|&i| pick(&truth[i])).collect();
+    assert!(idx.len() >= 10, "too few points picked: {}", idx.len());
+    let (mut bias, mut mean) = (0.0, 0.0);
+    for &i in &idx {
+        bias += est[i] as f64 - truth_ao(scene, &truth[i], tmax);
+        mean += est[i] as f64;
+    }
+    let k = idx.len() as f64;
+    (bias / k, mean / k, idx.len())
+}
+
+fn quad(center: DVec3, u: DVec3, v: DVec3, facing: DVec3) -> Prim {
+    Prim::quad_facing(center, u, v, facing)
+}
+
+fn floor(size: f64) -> Prim {
+    quad(DVec3::ZERO, DVec3::X * size, DVec3::Y * size, DVec3::Z)
+}
+
+fn cam(pos: [f64; 3], at: [f64; 3], fov_deg: f64, w: usize) -> Station {
+    Station::perspective(
+        DVec3::from(pos),
+        DVec3::from(at),
+        fov_deg.to_radians(),
+        w,
+        w * 3 / 4,
+    )
+}
+
+#[test]
+fn open_plane_seen_by_three_views_is_open() {
+    let scene = Scene {
+        prims: vec![floor(20.0)],
+    };
+    let st = [
+        cam([-1.0, -1.0, 1.5], [0.0, 0.0, 0.0], 60.0, 96),
+        cam([1.5, 0.0, 1.2], [0.0, 0.0, 0.0], 60.0, 96),
+        cam([0.0, 1.5, 2.0], [0.0, 0.0, 0.0], 60.0, 96),
+    ];
+    let (r, truth) = run(&scene, &st, 0.25, 0.5, Occlusion::Union, true);
+    for (k, (s, tr)) in r.iter().zip(&truth).enumerate() {
+        let near: Vec<usize> = (0..tr.len())
+            .filter(|&i| tr[i].p.x.abs() < 0.4 && tr[i].p.y.abs() < 0.4)
+            .collect();
+        assert!(!near.is_empty());
+        let mean = near.iter().map(|&i| s.ao[i] as f64).sum::<f64>() / near.len() as f64;
+        let least = near.iter().map(|&i| s.ao[i]).fold(1.0f32, f32::min);
+        assert!(mean >= 0.99 && least >= 0.97, "mean {mean}, least {least}");
+        let bent = s.bent.as_ref().expect("bent normals");
+        for &i in &near {
+            let n = tr[i].n;
+            let bw = (st[k].pose() * bent[i].as_dvec3().extend(0.0)).truncate();
+            let ang = bw.normalize().dot(n).clamp(-1.0, 1.0).acos().to_degrees();
+            assert!(ang < 0.5, "bent normal {ang}° off an open plane");
+        }
+    }
+}
+
+#[test]
+fn occluder_seen_only_by_the_other_scan() {
+    // A box on the floor right of x = 0.05; A looks down at the floor left of it (the box
+    // outside its frame), B sees both from the side.
+    let scene = Scene {
+        prims: vec![
+            floor(20.0),
+            Prim::Box {
+                min: DVec3::new(0.05, -0.6, 0.0),
+                max: DVec3::new(0.65, 0.6, 0.6),
+            },
+        ],
+    };
+    let st = [
+        cam([-0.45, 0.0, 1.0], [-0.45, 0.0, 0.0], 50.0, 128),
+        cam([-1.6, -1.2, 1.4], [0.0, 0.0, 0.2], 60.0, 160),
+    ];
+    let tmax = 0.6;
+    let (u, truth) = run(&scene, &st, 0.3, tmax as f32, Occlusion::Union, false);
+    let pick = |t: &Truth| t.n.z > 0.9 && t.p.x > -0.3 && t.p.x < 0.0 && t.p.y.abs() < 0.3;
+    let (b_single, m_single, _) = score(&scene, &truth[0], &u[0].ssao, tmax, pick);
+    let (bias, mean, k) = score(&scene, &truth[0], &u[0].ao, tmax, pick);
+    eprintln!(
+        "single {m_single:.3} (bias {b_single:+.3}); union {mean:.3} (bias {bias:+.3}), {k} pts"
+    );
+    assert!(bias.abs() <= 0.02, "union bias {bias}");
+}
+
+#[test]
+fn crease_wall_outside_the_frame() {
+    let scene = Scene {
+        prims: vec![
+            floor(20.0),
+            quad(
+                DVec3::new(0.0, 0.0, 5.0),
+                DVec3::Y * 20.0,
+                DVec3::Z * 10.0,
+                -DVec3::X,
+            ),
+        ],
+    };
+    let st = [
+        cam([-0.34, 0.0, 1.0], [-0.34, 0.0, 0.0], 50.0, 128),
+        cam([-2.0, -1.0, 1.2], [0.0, 0.0, 0.3], 60.0, 160),
+    ];
+    let tmax = 0.6;
+    let (u, truth) = run(&scene, &st, 0.3, tmax as f32, Occlusion::Union, false);
+    let pick = |t: &Truth| t.n.z > 0.9 && t.p.x > -0.15 && t.p.y.abs() < 0.3;
+    let (_, m_single, _) = score(&scene, &truth[0], &u[0].ssao, tmax, pick);
+    let (bias, mean, k) = score(&scene, &truth[0], &u[0].ao, tmax, pick);
+    eprintln!("single {m_single:.3}; union {mean:.3} (bias {bias:+.3}), {k} pts");
+    assert!(m_single >= 0.9, "A alone {m_single}");
+    assert!(bias.abs() <= 0.03, "union bias {bias}");
+}
+
+#[test]
+fn thin_panel_in_front_of_a_wall() {
+    // Wall y = 0 facing +y; a panel 2 cm thick, 0.5 m in front of it. A faces the wall, B
+    // looks along it from the side and sees the gap behind the panel.
+    let scene = Scene {
+        prims: vec![
+            quad(DVec3::ZERO, DVec3::X * 20.0, DVec3::Z * 20.0, DVec3::Y),
+            Prim::Box {
+                min: DVec3::new(-0.4, 0.5, -0.4),
+                max: DVec3::new(0.4, 0.52, 0.4),
+            },
+        ],
+    };
+    let st = [
+        cam([0.0, 3.0, 0.0], [0.0, 0.0, 0.0], 50.0, 160),
+        cam([3.0, 1.2, 0.0], [0.0, 0.25, 0.0], 50.0, 160),
+    ];
+    let tmax = 2.0;
+    let (u, truth) = run(&scene, &st, 1.0, tmax as f32, Occlusion::Union, false);
+    // A's wall points just outside the panel's outline as A sees it (the panel's shadow
+    // from A reaches |x| = 0.4 · 3 / 2.48 on the wall).
+    let edge = 0.4 * 3.0 / 2.48;
+    let pick = |t: &Truth| {
+        t.n.y > 0.9 && t.p.y.abs() < 1e-3 && {
+            let m = t.p.x.abs().max(t.p.z.abs());
+            m > edge + 0.02 && m < edge + 0.12
+        }
+    };
+    let (b_single, m_single, _) = score(&scene, &truth[0], &u[0].ssao, tmax, pick);
+    let (bias, mean, k) = score(&scene, &truth[0], &u[0].ao, tmax, pick);
+    eprintln!(
+        "single {m_single:.3} (bias {b_single:+.3}); union {mean:.3} (bias {bias:+.3}), {k} pts"
+    );
+    assert!(b_single <= -0.1, "A alone bias {b_single}");
+    assert!(bias.abs() <= 0.03, "union bias {bias}");
+}
+
+#[test]
+fn bent_normal_beside_a_wall_tilts_away() {
+    let scene = Scene {
+        prims: vec![
+            floor(200.0),
+            quad(
+                DVec3::new(0.0, 0.0, 50.0),
+                DVec3::Y * 200.0,
+                DVec3::Z * 100.0,
+                -DVec3::X,
+            ),
+        ],
+    };
+    let st = [cam([-1.0, 0.0, 0.8], [-0.02, 0.0, 0.0], 30.0, 192)];
+    let tmax = 2.0;
+    let (r, truth) = run(&scene, &st, 1.0, tmax as f32, Occlusion::Union, true);
+    let bent = r[0].bent.as_ref().expect("bent normals");
+    let pose = st[0].pose();
+    let mut tilt = Vec::new();
+    for (i, t) in truth[0].iter().enumerate() {
+        if t.n.z > 0.9 && t.p.x > -0.02 && t.p.x < -0.005 && t.p.y.abs() < 0.1 {
+            let b = (pose * bent[i].as_dvec3().extend(0.0))
+                .truncate()
+                .normalize();
+            assert!(b.x < 0.0, "tilts towards the wall: {b}");
+            tilt.push(b.z.clamp(-1.0, 1.0).acos().to_degrees());
+        }
+    }
+    assert!(tilt.len() >= 5, "{} points", tilt.len());
+    let mean = tilt.iter().sum::<f64>() / tilt.len() as f64;
+    let want = (2.0 / std::f64::consts::PI).atan().to_degrees();
+    assert!((mean - want).abs() <= 2.0, "tilt {mean}° want {want}°");
+}
