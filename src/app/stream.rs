@@ -223,11 +223,7 @@ pub fn synth(args: super::cli::SynthArgs) -> anyhow::Result<()> {
         truth_falloff: args.reference_falloff,
         ..StreamSynthOptions::default()
     };
-    let s = synth_stream(
-        &mvao::synth::Scene::room(),
-        &room_trajectory(o.frames),
-        &o,
-    );
+    let s = synth_stream(&mvao::synth::Scene::room(), &room_trajectory(o.frames), &o);
     write_stream(&s, &args.output)?;
     eprintln!(
         "{} depth frames of {}×{} of the room written to {}",

@@ -153,7 +153,12 @@ pub fn gbuffer(g: &FrameGeometry, k: &Intrinsics) -> GBuffer {
 
 /// A z-depth map at `1/factor` of the resolution: per block the mean of its measured
 /// depths (the cleaning already removed blocks that straddle an edge).
-pub fn downsample(depth: &[f32], width: usize, height: usize, factor: usize) -> (Vec<f32>, usize, usize) {
+pub fn downsample(
+    depth: &[f32],
+    width: usize,
+    height: usize,
+    factor: usize,
+) -> (Vec<f32>, usize, usize) {
     let f = factor.max(1);
     if f == 1 {
         return (depth.to_vec(), width, height);

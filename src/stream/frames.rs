@@ -79,8 +79,8 @@ fn check_intrinsics(k: Intrinsics) -> std::result::Result<Intrinsics, String> {
 
 fn read_open3d_json(path: &Path) -> Result<Intrinsics> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let v: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| Error::format(path, format!("not JSON: {e}")))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not JSON: {e}")))?;
     let m: Vec<f64> = v
         .get("intrinsic_matrix")
         .and_then(|m| m.as_array())
@@ -173,10 +173,7 @@ pub fn list_frames(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
             let mut v: Vec<PathBuf> = std::fs::read_dir(p)
                 .map_err(|e| Error::io(p, e))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|q| {
-                    q.extension()
-                        .is_some_and(|x| x.eq_ignore_ascii_case("png"))
-                })
+                .filter(|q| q.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
                 .collect();
             v.sort();
             if v.is_empty() {
@@ -213,9 +210,7 @@ pub fn read_trajectory(path: &Path) -> Result<Trajectory> {
     if lines.is_empty() {
         return Err(Error::format(path, "no pose in this trajectory"));
     }
-    let tum = lines
-        .iter()
-        .all(|(_, l)| l.split_whitespace().count() == 8);
+    let tum = lines.iter().all(|(_, l)| l.split_whitespace().count() == 8);
     if tum {
         read_tum(path, &lines)
     } else {

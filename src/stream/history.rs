@@ -44,8 +44,14 @@ pub fn render(
         }
         let (u, v) = (fx * q.x / q.z + cx, fy * q.y / q.z + cy);
         let s = (0.5 * voxel * fx.max(fy) / q.z).ceil().max(1.0);
-        let (x0, x1) = ((u - s).round().max(0.0), (u + s).round().min(width as f32 - 1.0));
-        let (y0, y1) = ((v - s).round().max(0.0), (v + s).round().min(height as f32 - 1.0));
+        let (x0, x1) = (
+            (u - s).round().max(0.0),
+            (u + s).round().min(width as f32 - 1.0),
+        );
+        let (y0, y1) = (
+            (v - s).round().max(0.0),
+            (v + s).round().min(height as f32 - 1.0),
+        );
         if !(x0 <= x1 && y0 <= y1) {
             continue;
         }

@@ -180,12 +180,20 @@ pub fn run(cfg: &StreamConfig, obs: &dyn Observer) -> Result<StreamReport> {
     obs.done("frames", start.elapsed().as_secs_f64());
     let frames_this_run = files.len() - first;
     let t = Instant::now();
-    let output = cfg.out_dir.join(format!("stream.{}", extension(cfg.format)));
+    let output = cfg
+        .out_dir
+        .join(format!("stream.{}", extension(cfg.format)));
     let points = write_points(cfg, &integ, &output)?;
     if cfg.preview {
         let mid = poses.len() / 2;
         let dims = size.unwrap_or((640, 480));
-        write_preview(&cfg.out_dir.join("stream.png"), &integ, poses[mid], dims, cfg.gamma)?;
+        write_preview(
+            &cfg.out_dir.join("stream.png"),
+            &integ,
+            poses[mid],
+            dims,
+            cfg.gamma,
+        )?;
     }
     let write_s = t.elapsed().as_secs_f64();
     let wall_s = start.elapsed().as_secs_f64();
@@ -206,8 +214,8 @@ pub fn run(cfg: &StreamConfig, obs: &dyn Observer) -> Result<StreamReport> {
         frames_per_s: frames_this_run as f64 / wall_s.max(1e-9),
         output,
     };
-    let json = serde_json::to_string_pretty(&report)
-        .map_err(|e| Error::Param(format!("report: {e}")))?;
+    let json =
+        serde_json::to_string_pretty(&report).map_err(|e| Error::Param(format!("report: {e}")))?;
     let rp = cfg.out_dir.join("report.json");
     crate::io::atomic::write_atomic(&rp, |w| std::io::Write::write_all(w, json.as_bytes()))?;
     if ck_path.is_file() {
@@ -263,11 +271,7 @@ fn write_points(cfg: &StreamConfig, integ: &Integrator, path: &Path) -> Result<u
         name: "stream".into(),
         xyz: pts.iter().map(|p| p.position.to_array()).collect(),
         pose: DMat4::IDENTITY,
-        rgb: Some(
-            pts.iter()
-                .map(|p| [grey(p.ao, cfg.gamma); 3])
-                .collect(),
-        ),
+        rgb: Some(pts.iter().map(|p| [grey(p.ao, cfg.gamma); 3]).collect()),
         intensity: None,
         ao: pts.iter().map(|p| p.ao).collect(),
         grid: None,
@@ -312,11 +316,10 @@ fn write_preview(
             })
             .collect(),
     };
-    let (pw, ph, buf) = pic
-        .cropped()
-        .fitted()
-        .despeckled()
-        .grey_alpha(Tone::Stretch, gamma, Orientation::default());
+    let (pw, ph, buf) = pic.cropped().fitted().despeckled().grey_alpha(
+        Tone::Stretch,
+        gamma,
+        Orientation::default(),
+    );
     crate::preview::write_png(path, pw, ph, &buf)
 }
-

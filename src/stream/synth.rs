@@ -77,7 +77,11 @@ pub fn room_trajectory(frames: usize) -> Vec<DMat4> {
             let pos = DVec3::new(1.0 * th.cos(), 0.8 * th.sin(), 1.5 + 0.1 * (3.0 * th).sin());
             let yaw = th + 0.7;
             let pitch: f64 = -0.35;
-            let fwd = DVec3::new(yaw.cos() * pitch.cos(), yaw.sin() * pitch.cos(), pitch.sin());
+            let fwd = DVec3::new(
+                yaw.cos() * pitch.cos(),
+                yaw.sin() * pitch.cos(),
+                pitch.sin(),
+            );
             look_pose(pos, fwd)
         })
         .collect()
@@ -89,12 +93,7 @@ pub fn look_pose(pos: DVec3, fwd: DVec3) -> DMat4 {
     let f = fwd.normalize();
     let r = f.cross(DVec3::Z).normalize();
     let d = f.cross(r);
-    DMat4::from_cols(
-        r.extend(0.0),
-        d.extend(0.0),
-        f.extend(0.0),
-        pos.extend(1.0),
-    )
+    DMat4::from_cols(r.extend(0.0), d.extend(0.0), f.extend(0.0), pos.extend(1.0))
 }
 
 /// Standard deviation (metres) of a structured-light camera's depth noise at depth `z`.
@@ -163,13 +162,16 @@ fn synth_frame(
             // Structured light loses the pixels next to a depth edge (the projector's
             // pattern is occluded there) and a few at random.
             let (x, y) = (i % w, i / w);
-            let edge = [(0i64, -1i64), (0, 1), (-1, 0), (1, 0)].iter().any(|&(dx, dy)| {
-                let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
-                    return false;
-                }
-                exact[ny as usize * w + nx as usize].is_none_or(|(q, _, _)| (q - z).abs() > 0.04 * z)
-            });
+            let edge = [(0i64, -1i64), (0, 1), (-1, 0), (1, 0)]
+                .iter()
+                .any(|&(dx, dy)| {
+                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+                    if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+                        return false;
+                    }
+                    exact[ny as usize * w + nx as usize]
+                        .is_none_or(|(q, _, _)| (q - z).abs() > 0.04 * z)
+                });
             let u = rng.next_f64();
             if (edge && u < 0.6) || u < 0.01 * o.noise.min(1.0) {
                 return 0.0;
@@ -179,17 +181,34 @@ fn synth_frame(
         })
         .collect();
     let truth = truth_of(scene, &exact, o);
-    (DepthFrame { width: w, height: h, depth }, truth)
+    (
+        DepthFrame {
+            width: w,
+            height: h,
+            depth,
+        },
+        truth,
+    )
 }
 
 /// The reference obscurance at each pixel's noise-free point (NaN where none).
-fn truth_of(scene: &Scene, exact: &[Option<(f64, DVec3, DVec3)>], o: &StreamSynthOptions) -> Vec<f32> {
+fn truth_of(
+    scene: &Scene,
+    exact: &[Option<(f64, DVec3, DVec3)>],
+    o: &StreamSynthOptions,
+) -> Vec<f32> {
     if o.truth_rays == 0 {
         return vec![f32::NAN; exact.len()];
     }
     let idx: Vec<usize> = (0..exact.len()).filter(|&i| exact[i].is_some()).collect();
-    let pts: Vec<Vec3> = idx.iter().filter_map(|&i| exact[i].map(|e| e.1.as_vec3())).collect();
-    let nrm: Vec<Vec3> = idx.iter().filter_map(|&i| exact[i].map(|e| e.2.as_vec3())).collect();
+    let pts: Vec<Vec3> = idx
+        .iter()
+        .filter_map(|&i| exact[i].map(|e| e.1.as_vec3()))
+        .collect();
+    let nrm: Vec<Vec3> = idx
+        .iter()
+        .filter_map(|&i| exact[i].map(|e| e.2.as_vec3()))
+        .collect();
     let mut scan = Scan::from_points("frame", pts);
     scan.normals = Some(nrm);
     let a = analytic_obscurance(
@@ -221,7 +240,13 @@ pub fn write_stream(s: &SynthStream, dir: &Path) -> Result<()> {
             height: f.height,
             depth: t
                 .iter()
-                .map(|&a| if a.is_finite() { 1.0 + a.clamp(0.0, 1.0) * 65534.0 } else { 0.0 })
+                .map(|&a| {
+                    if a.is_finite() {
+                        1.0 + a.clamp(0.0, 1.0) * 65534.0
+                    } else {
+                        0.0
+                    }
+                })
                 .collect(),
         };
         write_depth_png(&dir.join(format!("truth/{i:05}.png")), &tf, 1.0)?;
@@ -237,7 +262,10 @@ pub fn write_stream(s: &SynthStream, dir: &Path) -> Result<()> {
     let k = &s.intrinsics;
     for (name, text) in [
         ("trajectory.log", log),
-        ("intrinsics.txt", format!("{} {} {} {}\n", k.fx, k.fy, k.cx, k.cy)),
+        (
+            "intrinsics.txt",
+            format!("{} {} {} {}\n", k.fx, k.fy, k.cx, k.cy),
+        ),
     ] {
         let p = dir.join(name);
         crate::io::atomic::write_atomic(&p, |w| w.write_all(text.as_bytes()))?;
