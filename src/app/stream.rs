@@ -69,9 +69,10 @@ pub struct StreamArgs {
     /// Compute each frame's SSAO at 1/N of its resolution (N × N pixel blocks).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
     pub ssao_scale: u32,
-    /// SSAO on the geometry integrated so far rendered at each frame's pose.
+    /// SSAO on each frame's own cleaned depth instead of on the geometry integrated so far
+    /// at its pose (history); the result then does not depend on the frame order.
     #[arg(long)]
-    pub history: bool,
+    pub no_history: bool,
     /// Skip the 5×5 blur of each frame's SSAO.
     #[arg(long)]
     pub no_blur: bool,
@@ -137,7 +138,7 @@ impl StreamArgs {
             },
             voxel,
             ssao_scale: self.ssao_scale as usize,
-            history: self.history,
+            history: !self.no_history,
             ..StreamParams::default()
         };
         params.ssao.estimator = self.estimator;

@@ -8,6 +8,7 @@ use super::frame::FrameGeometry;
 use super::frames::Intrinsics;
 use super::grid::VoxelGrid;
 use glam::{DMat4, Vec3};
+use rayon::prelude::*;
 
 /// Renders the grid's occupied voxels into a `width × height` frame of intrinsics `k` seen
 /// from camera-to-world `pose`. Pixels no voxel covers are empty. Deterministic: a pixel
@@ -77,20 +78,81 @@ pub fn render(
     (geo, ao)
 }
 
-/// The frame's depth for its SSAO with history: the rendered history where it has a
-/// surface, the frame's own geometry where the history has none or where the frame sees
-/// something nearer by more than `tol` metres (a surface no earlier frame saw).
-pub fn blend(history: &FrameGeometry, own: &FrameGeometry, tol: f32) -> FrameGeometry {
-    let mut out = history.clone();
-    for i in 0..out.points.len().min(own.points.len()) {
-        if !own.is_valid(i) {
-            continue;
-        }
-        let h = history.points[i].z;
-        if !(h > 0.0) || own.points[i].z < h - tol {
-            out.points[i] = own.points[i];
-            out.normals[i] = own.normals[i];
+/// The frame's geometry for its SSAO with history: each pixel the frame measured moves
+/// along its ray onto the plane (mean position, mean normal) of the voxel its point falls
+/// in and takes that normal, so the noise of one frame is replaced by the average of the
+/// frames before it; pixels the frame did not measure take the rendered history. A pixel
+/// whose voxel is empty, or whose plane lies farther than a voxel along the ray, keeps its
+/// own point and normal.
+pub fn blend(
+    history: &FrameGeometry,
+    own: &FrameGeometry,
+    grid: &VoxelGrid,
+    pose: DMat4,
+) -> FrameGeometry {
+    let to_cam = pose.inverse();
+    let rot = glam::DMat3::from_mat4(to_cam);
+    let voxel = grid.voxel as f32;
+    let n = own.points.len().min(history.points.len());
+    let px: Vec<(Vec3, Vec3)> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            if !own.is_valid(i) {
+                return (history.points[i], history.normals[i]);
+            }
+            let q = own.points[i];
+            let keep = (q, own.normals[i]);
+            let pw = pose.transform_point3(q.as_dvec3());
+            let Some((mw, nw)) = neighbourhood_plane(grid, pw) else {
+                return keep;
+            };
+            let m = to_cam.transform_point3(mw).as_vec3();
+            let nrm = (rot * nw.as_dvec3()).as_vec3();
+            let ray = q / q.z;
+            let den = nrm.dot(ray);
+            if !(den < -1e-3) {
+                return keep;
+            }
+            let z = nrm.dot(m) / den;
+            if !((z - q.z).abs() <= voxel) {
+                return keep;
+            }
+            (ray * z, nrm)
+        })
+        .collect();
+    let points: Vec<Vec3> = px.iter().map(|p| p.0).collect();
+    let normals = px.iter().map(|p| p.1).collect();
+    FrameGeometry {
+        width: own.width,
+        height: own.height,
+        points,
+        normals,
+    }
+}
+
+/// The weighted mean position and unit mean normal of the points in the 3 × 3 × 3 voxels
+/// around `p`: wide enough to hold a surface's noise on both sides, so the mean lies on the
+/// surface rather than on the side of it the centre voxel happens to cut.
+pub fn neighbourhood_plane(grid: &VoxelGrid, p: glam::DVec3) -> Option<(glam::DVec3, Vec3)> {
+    let c = grid.cell_of(p);
+    let (mut sp, mut sn, mut sw) = (glam::DVec3::ZERO, Vec3::ZERO, 0.0f64);
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let Some(k) = super::grid::morton([c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                    continue;
+                };
+                let Some(cell) = grid.get(k) else {
+                    continue;
+                };
+                let off =
+                    glam::DVec3::new(cell.pos[0] as f64, cell.pos[1] as f64, cell.pos[2] as f64);
+                sp += grid.corner(k) * cell.w + off;
+                sn += Vec3::from(cell.nrm);
+                sw += cell.w;
+            }
         }
     }
-    out
+    let n = sn.normalize_or_zero();
+    (sw > 0.0 && n != Vec3::ZERO).then(|| (sp / sw, n))
 }

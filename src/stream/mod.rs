@@ -59,7 +59,7 @@ impl Default for StreamParams {
                 blur: true,
             },
             ssao_scale: 1,
-            history: false,
+            history: true,
         }
     }
 }
@@ -171,7 +171,7 @@ impl Integrator {
         self.times.clean_normals += lap(&mut t);
         let low = if p.history {
             let (hist, _) = history::render(&self.grid, pose, &k_low, lw, lh, p.clean.min_range);
-            history::blend(&hist, &own_low, 3.0 * p.voxel as f32)
+            history::blend(&hist, &own_low, &self.grid, pose)
         } else {
             own_low
         };

@@ -95,6 +95,7 @@ fn cleaning_drops_one_band_each_side_of_a_5cm_step_and_nothing_at_1cm() {
 fn small_params() -> StreamParams {
     let mut p = StreamParams {
         voxel: 0.05,
+        history: false,
         ..StreamParams::default()
     };
     p.clean.edge = 0.15;
