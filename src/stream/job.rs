@@ -235,7 +235,7 @@ fn extension(f: Format) -> &'static str {
 
 /// A hash of what decides the result: the settings and the frame list, so a checkpoint
 /// of another run is not resumed.
-fn settings_hash(cfg: &StreamConfig, files: &[PathBuf]) -> u64 {
+pub fn settings_hash(cfg: &StreamConfig, files: &[PathBuf]) -> u64 {
     let text = format!(
         "{:?}|{:?}|{}|{:?}|{:?}",
         cfg.params, cfg.intrinsics, cfg.depth_scale, files, cfg.trajectory

@@ -15,7 +15,7 @@ pub mod history;
 mod job;
 pub mod synth;
 
-pub use job::{run, DroppedFrame, StreamConfig, StreamReport, WeightSummary};
+pub use job::{run, settings_hash, DroppedFrame, StreamConfig, StreamReport, WeightSummary};
 
 use crate::ssao::SsaoParams;
 use clean::CleanParams;
