@@ -438,7 +438,10 @@ fn issue_33_bad_streams_are_refused() {
     let frame = |i: u32| s(&st.join(format!("depth/{i:05}.png")));
     // A frame that does not exist.
     let missing = s(&st.join("depth/00009.png"));
-    let err = fails(&run(vec![frame(0), frame(1), missing.clone()], &traj), &missing);
+    let err = fails(
+        &run(vec![frame(0), frame(1), missing.clone()], &traj),
+        &missing,
+    );
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     // An 8-bit PNG among the frames.
     let eight = d.path().join("eight.png");

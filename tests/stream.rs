@@ -102,15 +102,19 @@ fn issue_33_voxels_beat_single_frames_and_history_is_order_stable() {
     assert!((hv - hr).abs() <= 0.01, "{hv} vs reversed {hr}");
 }
 
-/// See issue 33: SSAO at half resolution stays within 1.2 × the e_A of full resolution.
+/// See issue 33: SSAO at a half and a quarter of the resolution (the default) stays within
+/// 1.2 × the e_A of full resolution (on noisy frames it is better: block means average the
+/// noise out of the depth the estimator reads).
 #[test]
-fn issue_33_half_resolution_ssao_is_within_1_2_of_full() {
+fn issue_33_reduced_resolution_ssao_is_within_1_2_of_full() {
     let s = room_stream(60, 160, 120, 64);
     let order: Vec<usize> = (0..60).collect();
     let (full, fs, _) = score(&s, params(0.03, 0.05, false, 1), &order);
-    let (half, hs, _) = score(&s, params(0.03, 0.05, false, 2), &order);
-    eprintln!("full: voxel e_A {full:.4} (single {fs:.4}); half: {half:.4} (single {hs:.4})");
-    assert!(half <= 1.2 * full, "half {half} vs full {full}");
+    for f in [2, 4] {
+        let (low, ls, _) = score(&s, params(0.03, 0.05, false, f), &order);
+        eprintln!("1/{f}: voxel e_A {low:.4} (single {ls:.4}); full: {full:.4} (single {fs:.4})");
+        assert!(low <= 1.2 * full, "1/{f}: {low} vs full {full}");
+    }
 }
 
 /// See issue 33: a killed run resumes from its checkpoint and ends with the same points as

@@ -66,13 +66,13 @@ pub struct StreamArgs {
     /// Horizon estimator: steps per direction.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub steps: u32,
-    /// Compute each frame's SSAO at 1/N of its resolution (N × N pixel blocks).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
+    /// Compute each frame's SSAO at 1/N of its resolution (means of N × N pixel blocks).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=8))]
     pub ssao_scale: u32,
-    /// SSAO on each frame's own cleaned depth instead of on the geometry integrated so far
-    /// at its pose (history); the result then does not depend on the frame order.
+    /// SSAO on the geometry integrated so far at each frame's pose instead of on the frame's
+    /// own cleaned depth (without it, the result does not depend on the frame order).
     #[arg(long)]
-    pub no_history: bool,
+    pub history: bool,
     /// Skip the 5×5 blur of each frame's SSAO.
     #[arg(long)]
     pub no_blur: bool,
@@ -138,7 +138,7 @@ impl StreamArgs {
             },
             voxel,
             ssao_scale: self.ssao_scale as usize,
-            history: !self.no_history,
+            history: self.history,
             ..StreamParams::default()
         };
         params.ssao.estimator = self.estimator;

@@ -84,6 +84,19 @@ pub struct Cell {
     pub nrm: [f32; 3],
 }
 
+impl Cell {
+    /// Adds the sums of `o`.
+    #[inline]
+    pub fn accumulate(&mut self, o: &Cell) {
+        self.aw += o.aw;
+        self.w += o.w;
+        for a in 0..3 {
+            self.pos[a] += o.pos[a];
+            self.nrm[a] += o.nrm[a];
+        }
+    }
+}
+
 /// One output point of the grid.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VoxelPoint {
@@ -155,6 +168,24 @@ impl VoxelGrid {
             c.pos[a] += off[a];
             c.nrm[a] += nw[a];
         }
+    }
+
+    /// One sample's contribution to the voxel of key `k`: world point `p`, world unit normal
+    /// `n`, SSAO `ao`, weight `w`.
+    pub fn contribution(&self, k: u64, p: DVec3, n: Vec3, ao: f32, w: f32) -> Cell {
+        let off = (p - self.corner(k)).as_vec3() * w;
+        let nw = n * w;
+        Cell {
+            aw: ao as f64 * w as f64,
+            w: w as f64,
+            pos: off.to_array(),
+            nrm: nw.to_array(),
+        }
+    }
+
+    /// Adds summed contributions `c` to the voxel of key `k`.
+    pub fn add_cell(&mut self, k: u64, c: &Cell) {
+        self.cells.entry(k).or_default().accumulate(c);
     }
 
     /// Number of occupied voxels.

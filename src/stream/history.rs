@@ -79,8 +79,8 @@ pub fn render(
 }
 
 /// The frame's geometry for its SSAO with history: each pixel the frame measured moves
-/// along its ray onto the plane (mean position, mean normal) of the voxel its point falls
-/// in and takes that normal, so the noise of one frame is replaced by the average of the
+/// along its ray onto the plane (mean position, mean normal) of the integrated points
+/// around it and takes that normal, so the noise of one frame is replaced by the average of the
 /// frames before it; pixels the frame did not measure take the rendered history. A pixel
 /// whose voxel is empty, or whose plane lies farther than a voxel along the ray, keeps its
 /// own point and normal.
@@ -130,15 +130,15 @@ pub fn blend(
     }
 }
 
-/// The weighted mean position and unit mean normal of the points in the 3 × 3 × 3 voxels
-/// around `p`: wide enough to hold a surface's noise on both sides, so the mean lies on the
-/// surface rather than on the side of it the centre voxel happens to cut.
+/// The weighted mean position and unit mean normal of the points in the 2 × 2 × 2 voxels
+/// whose centres surround `p`: two voxels across hold a surface's noise on both sides of `p`,
+/// so the mean lies on the surface rather than on the side of it one voxel happens to cut.
 pub fn neighbourhood_plane(grid: &VoxelGrid, p: glam::DVec3) -> Option<(glam::DVec3, Vec3)> {
-    let c = grid.cell_of(p);
+    let c = grid.cell_of(p - glam::DVec3::splat(0.5 * grid.voxel));
     let (mut sp, mut sn, mut sw) = (glam::DVec3::ZERO, Vec3::ZERO, 0.0f64);
-    for dz in -1..=1 {
-        for dy in -1..=1 {
-            for dx in -1..=1 {
+    for dz in 0..=1 {
+        for dy in 0..=1 {
+            for dx in 0..=1 {
                 let Some(k) = super::grid::morton([c[0] + dx, c[1] + dy, c[2] + dz]) else {
                     continue;
                 };

@@ -20,7 +20,7 @@ pub use job::{run, settings_hash, DroppedFrame, StreamConfig, StreamReport, Weig
 use crate::ssao::SsaoParams;
 use clean::CleanParams;
 use frames::{DepthFrame, Intrinsics};
-use glam::{DMat3, DMat4, DVec3};
+use glam::{DMat3, DMat4};
 use grid::VoxelGrid;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -58,8 +58,8 @@ impl Default for StreamParams {
                 seed: 0,
                 blur: true,
             },
-            ssao_scale: 1,
-            history: true,
+            ssao_scale: 4,
+            history: false,
         }
     }
 }
@@ -106,8 +106,9 @@ pub struct Integrator {
     pub truth: std::collections::HashMap<u64, (f64, u64)>,
 }
 
-/// One pixel to add: index, world point, world normal, SSAO, weight.
-type Sample = (usize, DVec3, glam::Vec3, f32, f32);
+/// One pixel to add: its index, its voxel's key (`u64::MAX` beyond the keyed range) and
+/// its contribution.
+type Sample = (usize, u64, grid::Cell);
 
 impl Integrator {
     /// An empty integration.
@@ -198,6 +199,7 @@ impl Integrator {
         let (dmin, dmax) = (self.params.clean.min_range, self.params.clean.max_range);
         // Per pixel in parallel, then added in pixel order so the sums do not depend on
         // thread timing.
+        let grid = &self.grid;
         let samples: Vec<Option<Sample>> = (0..geo.points.len())
             .into_par_iter()
             .map(|i| {
@@ -212,13 +214,23 @@ impl Integrator {
                 }
                 let pw = pose.transform_point3(pl.as_dvec3());
                 let nw = (rot * nl.as_dvec3()).as_vec3().normalize_or_zero();
-                Some((i, pw, nw, a, wt))
+                let Some(k) = grid.key_of(pw) else {
+                    return Some((i, u64::MAX, grid::Cell::default()));
+                };
+                Some((i, k, grid.contribution(k, pw, nw, a, wt)))
             })
             .collect();
+        // Neighbouring pixels of a row mostly share a voxel: their sums are added up first
+        // and reach the table once per run.
         let mut n = 0;
-        for (i, pw, nw, a, wt) in samples.into_iter().flatten() {
-            self.grid.add(pw, nw, a, wt);
-            if let (Some(t), Some(k)) = (truth, self.grid.key_of(pw)) {
+        let mut run: Option<(u64, grid::Cell)> = None;
+        for (i, k, c) in samples.into_iter().flatten() {
+            n += 1;
+            if k == u64::MAX {
+                self.grid.out_of_range += 1;
+                continue;
+            }
+            if let Some(t) = truth {
                 let a = t.get(i).copied().unwrap_or(f32::NAN);
                 if a.is_finite() {
                     let e = self.truth.entry(k).or_insert((0.0, 0));
@@ -226,7 +238,18 @@ impl Integrator {
                     e.1 += 1;
                 }
             }
-            n += 1;
+            match &mut run {
+                Some((rk, acc)) if *rk == k => acc.accumulate(&c),
+                _ => {
+                    if let Some((rk, acc)) = run.take() {
+                        self.grid.add_cell(rk, &acc);
+                    }
+                    run = Some((k, c));
+                }
+            }
+        }
+        if let Some((rk, acc)) = run {
+            self.grid.add_cell(rk, &acc);
         }
         n
     }

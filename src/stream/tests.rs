@@ -96,6 +96,7 @@ fn small_params() -> StreamParams {
     let mut p = StreamParams {
         voxel: 0.05,
         history: false,
+        ssao_scale: 1,
         ..StreamParams::default()
     };
     p.clean.edge = 0.15;
