@@ -121,8 +121,8 @@ fn one_frame_gives_each_voxel_the_weighted_mean_of_its_pixels() {
     assert!(st.integrated > 1000, "{st:?}");
     let p = it.params.clean;
     let mut sums: HashMap<u64, (f64, f64)> = HashMap::new();
-    for i in 0..geo.points.len() {
-        let (Some(a), true) = (ao[i], geo.is_valid(i)) else {
+    for (i, a) in ao.iter().enumerate() {
+        let (Some(a), true) = (*a, geo.is_valid(i)) else {
             continue;
         };
         let w = frame::weight(geo.points[i], geo.normals[i], p.min_range, p.max_range);
