@@ -147,7 +147,9 @@ fn issue_33_a_stopped_stream_resumes_from_its_checkpoint() {
     let c = cfg("resumed");
     let mut it = Integrator::new(c.params, c.intrinsics);
     let frames = mvao::stream::frames::list_frames(&c.inputs).unwrap();
-    for (f, p) in frames.iter().zip(&s.poses).take(3) {
+    // The poses as the run reads them (the file holds 9 decimals).
+    let traj = mvao::stream::frames::read_trajectory(&c.trajectory).unwrap();
+    for (f, p) in frames.iter().zip(&traj.poses).take(3) {
         let fr = mvao::stream::frames::read_depth_png(f, 1000.0).unwrap();
         it.add_frame(&fr, *p);
     }
