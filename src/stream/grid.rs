@@ -71,6 +71,19 @@ impl Hasher for KeyHasher {
     }
 }
 
+/// Parts of the table (a power of two).
+pub const SHARDS: usize = 16;
+
+/// One part of the table.
+pub type Table = HashMap<u64, Cell, BuildHasherDefault<KeyHasher>>;
+
+/// The part of the table holding key `k`: high bits of a mix of the key, so that a frame's
+/// voxels spread evenly over the parts.
+#[inline]
+pub fn shard(k: u64) -> usize {
+    (k.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 60) as usize & (SHARDS - 1)
+}
+
 /// One occupied voxel's sums.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Cell {
@@ -117,7 +130,8 @@ pub struct VoxelPoint {
 pub struct VoxelGrid {
     /// Edge of a voxel (metres).
     pub voxel: f64,
-    cells: HashMap<u64, Cell, BuildHasherDefault<KeyHasher>>,
+    /// The table, split by key into [`SHARDS`] parts that frames update in parallel.
+    cells: Vec<Table>,
     /// Samples whose cell has no key (beyond ±2²⁰ voxels).
     pub out_of_range: u64,
 }
@@ -127,7 +141,7 @@ impl VoxelGrid {
     pub fn new(voxel: f64) -> VoxelGrid {
         VoxelGrid {
             voxel,
-            cells: HashMap::default(),
+            cells: (0..SHARDS).map(|_| Table::default()).collect(),
             out_of_range: 0,
         }
     }
@@ -161,7 +175,7 @@ impl VoxelGrid {
         };
         let off = (p - self.corner(k)).as_vec3() * w;
         let nw = n * w;
-        let c = self.cells.entry(k).or_default();
+        let c = self.cells[shard(k)].entry(k).or_default();
         c.aw += ao as f64 * w as f64;
         c.w += w as f64;
         for a in 0..3 {
@@ -185,37 +199,43 @@ impl VoxelGrid {
 
     /// Adds summed contributions `c` to the voxel of key `k`.
     pub fn add_cell(&mut self, k: u64, c: &Cell) {
-        self.cells.entry(k).or_default().accumulate(c);
+        self.cells[shard(k)].entry(k).or_default().accumulate(c);
+    }
+
+    /// The parts of the table, for updates in parallel (key `k` belongs in part [`shard`]`(k)`).
+    pub fn shards_mut(&mut self) -> &mut [Table] {
+        &mut self.cells
     }
 
     /// Number of occupied voxels.
     pub fn len(&self) -> usize {
-        self.cells.len()
+        self.cells.iter().map(HashMap::len).sum()
     }
 
     /// True when no voxel is occupied.
     pub fn is_empty(&self) -> bool {
-        self.cells.is_empty()
+        self.cells.iter().all(HashMap::is_empty)
     }
 
     /// The sums of the voxel of key `k`.
     pub fn get(&self, k: u64) -> Option<&Cell> {
-        self.cells.get(&k)
+        self.cells[shard(k)].get(&k)
     }
 
     /// Bytes the table holds (its entries and control bytes at its present capacity).
     pub fn table_bytes(&self) -> usize {
         let entry = std::mem::size_of::<(u64, Cell)>() + 1;
-        self.cells.capacity() * entry + std::mem::size_of::<Self>()
+        let slots: usize = self.cells.iter().map(HashMap::capacity).sum();
+        slots * entry + SHARDS * std::mem::size_of::<Table>() + std::mem::size_of::<Self>()
     }
 
     /// Every occupied voxel with positive weight as a point, in key order.
     pub fn points(&self) -> Vec<VoxelPoint> {
-        let mut keys: Vec<u64> = self.cells.keys().copied().collect();
+        let mut keys: Vec<u64> = self.iter().map(|(k, _)| k).collect();
         keys.sort_unstable();
         keys.into_iter()
             .filter_map(|k| {
-                let c = self.cells.get(&k)?;
+                let c = self.get(k)?;
                 self.point_of(k, c)
             })
             .collect()
@@ -241,7 +261,9 @@ impl VoxelGrid {
 
     /// Every occupied voxel's key and sums, in no particular order.
     pub fn iter(&self) -> impl Iterator<Item = (u64, &Cell)> + '_ {
-        self.cells.iter().map(|(k, c)| (*k, c))
+        self.cells
+            .iter()
+            .flat_map(|t| t.iter().map(|(k, c)| (*k, c)))
     }
 }
 
@@ -266,14 +288,14 @@ pub fn write_checkpoint(path: &Path, grid: &VoxelGrid, head: CheckpointHead) -> 
             head.settings,
             grid.voxel.to_bits(),
             grid.out_of_range,
-            grid.cells.len() as u64,
+            grid.len() as u64,
         ] {
             w.write_all(&v.to_le_bytes())?;
         }
-        let mut keys: Vec<u64> = grid.cells.keys().copied().collect();
+        let mut keys: Vec<u64> = grid.iter().map(|(k, _)| k).collect();
         keys.sort_unstable();
         for k in keys {
-            let c = grid.cells[&k];
+            let c = grid.get(k).copied().unwrap_or_default();
             w.write_all(&k.to_le_bytes())?;
             w.write_all(&c.aw.to_le_bytes())?;
             w.write_all(&c.w.to_le_bytes())?;
@@ -308,7 +330,6 @@ pub fn read_checkpoint(path: &Path) -> Result<(VoxelGrid, CheckpointHead)> {
     }
     let mut grid = VoxelGrid::new(f64::from_bits(voxel));
     grid.out_of_range = out_of_range;
-    grid.cells.reserve(n as usize);
     for e in r.chunks_exact(ENTRY) {
         let u = |i: usize| {
             let mut b = [0u8; 8];
@@ -326,7 +347,7 @@ pub fn read_checkpoint(path: &Path) -> Result<(VoxelGrid, CheckpointHead)> {
             pos: [f(0), f(1), f(2)],
             nrm: [f(3), f(4), f(5)],
         };
-        grid.cells.insert(u(0), c);
+        grid.cells[shard(u(0))].insert(u(0), c);
     }
     Ok((
         grid,

@@ -220,37 +220,51 @@ impl Integrator {
                 Some((i, k, grid.contribution(k, pw, nw, a, wt)))
             })
             .collect();
-        // Neighbouring pixels of a row mostly share a voxel: their sums are added up first
-        // and reach the table once per run.
         let mut n = 0;
-        let mut run: Option<(u64, grid::Cell)> = None;
-        for (i, k, c) in samples.into_iter().flatten() {
+        for &(i, k, _) in samples.iter().flatten() {
             n += 1;
             if k == u64::MAX {
                 self.grid.out_of_range += 1;
                 continue;
             }
-            if let Some(t) = truth {
-                let a = t.get(i).copied().unwrap_or(f32::NAN);
-                if a.is_finite() {
-                    let e = self.truth.entry(k).or_insert((0.0, 0));
-                    e.0 += a as f64;
-                    e.1 += 1;
-                }
+            let Some(t) = truth else {
+                continue;
+            };
+            let a = t.get(i).copied().unwrap_or(f32::NAN);
+            if a.is_finite() {
+                let e = self.truth.entry(k).or_insert((0.0, 0));
+                e.0 += a as f64;
+                e.1 += 1;
             }
-            match &mut run {
-                Some((rk, acc)) if *rk == k => acc.accumulate(&c),
-                _ => {
-                    if let Some((rk, acc)) = run.take() {
-                        self.grid.add_cell(rk, &acc);
+        }
+        // Each part of the table takes its pixels in pixel order, so the sums do not depend
+        // on thread timing. Neighbouring pixels of a row mostly share a voxel: their sums are
+        // added up first and reach the table once per run.
+        self.grid
+            .shards_mut()
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(si, table)| {
+                let mut run: Option<(u64, grid::Cell)> = None;
+                let mine = samples
+                    .iter()
+                    .flatten()
+                    .filter(|s| s.1 != u64::MAX && grid::shard(s.1) == si);
+                for (_, k, c) in mine {
+                    match &mut run {
+                        Some((rk, acc)) if rk == k => acc.accumulate(c),
+                        _ => {
+                            if let Some((rk, acc)) = run.take() {
+                                table.entry(rk).or_default().accumulate(&acc);
+                            }
+                            run = Some((*k, *c));
+                        }
                     }
-                    run = Some((k, c));
                 }
-            }
-        }
-        if let Some((rk, acc)) = run {
-            self.grid.add_cell(rk, &acc);
-        }
+                if let Some((rk, acc)) = run {
+                    table.entry(rk).or_default().accumulate(&acc);
+                }
+            });
         n
     }
 }
