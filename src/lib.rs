@@ -73,6 +73,7 @@ pub(crate) mod sensor;
 pub(crate) mod site;
 pub(crate) mod ssao;
 pub(crate) mod store;
+pub mod stream;
 pub mod sweep;
 pub mod synth;
 pub(crate) mod sys;

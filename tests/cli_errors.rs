@@ -394,3 +394,77 @@ fn bad_flag_values_are_rejected() {
         "--pose a is given twice",
     );
 }
+
+/// A small stream of `n` synthetic depth frames in `dir` (`depth/`, `trajectory.log`).
+fn small_stream(dir: &Path, n: u32) -> PathBuf {
+    let out = dir.join("stream");
+    mvao_ok(&[
+        "synth",
+        "--frames",
+        &n.to_string(),
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "-o",
+        &s(&out),
+    ]);
+    out
+}
+
+/// See issue 33: bad depth streams fail with one line naming the file, and nothing is
+/// written.
+#[test]
+fn issue_33_bad_streams_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let st = small_stream(d.path(), 3);
+    let k = std::fs::read_to_string(st.join("intrinsics.txt")).unwrap();
+    let traj = st.join("trajectory.log");
+    let out = d.path().join("out");
+    let run = |frames: Vec<String>, traj: &Path| {
+        let mut a = vec!["stream".to_string()];
+        a.extend(frames);
+        a.extend([
+            "-t".into(),
+            s(traj),
+            "--intrinsics".into(),
+            k.trim().into(),
+            "-o".into(),
+            s(&out),
+            "-q".into(),
+        ]);
+        a
+    };
+    let frame = |i: u32| s(&st.join(format!("depth/{i:05}.png")));
+    // A frame that does not exist.
+    let missing = s(&st.join("depth/00009.png"));
+    let err = fails(
+        &run(vec![frame(0), frame(1), missing.clone()], &traj),
+        &missing,
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    // An 8-bit PNG among the frames.
+    let eight = d.path().join("eight.png");
+    mvao::testing::preview::write_png(&eight, 32, 24, &vec![128u8; 32 * 24 * 2]).unwrap();
+    fails(&run(vec![frame(0), frame(1), s(&eight)], &traj), "16-bit");
+    // A malformed trajectory line.
+    let bad = d.path().join("bad.log");
+    let text = std::fs::read_to_string(&traj).unwrap();
+    let bad_lines: Vec<&str> = text.lines().collect();
+    let mut broken = bad_lines.clone();
+    broken[2] = "1 0 zero 0";
+    std::fs::write(&bad, broken.join("\n")).unwrap();
+    fails(&run(vec![s(&st.join("depth"))], &bad), "bad.log: line 3");
+    // Frames and poses that do not match in number.
+    fails(
+        &run(vec![frame(0), frame(1)], &traj),
+        "3 poses for 2 depth frames",
+    );
+    assert!(!out.join("report.json").exists());
+    // The good stream runs and writes its outputs.
+    let ok = run(vec![s(&st.join("depth"))], &traj);
+    let a: Vec<&str> = ok.iter().map(|x| x.as_str()).collect();
+    mvao_ok(&a);
+    assert!(out.join("report.json").exists() && out.join("stream.ply").exists());
+    assert!(!out.join("stream.checkpoint").exists());
+}

@@ -47,6 +47,8 @@ pub enum Command {
     Plot(PlotArgs),
     /// Write synthetic scans of an analytic scene (a virtual scanner) with an .mlp alignment.
     Synth(SynthArgs),
+    /// Integrate a depth-camera stream (depth frames + trajectory) into an AO voxel grid.
+    Stream(super::stream::StreamArgs),
 }
 
 /// Flags of `mvao merge`.
@@ -471,6 +473,11 @@ pub struct SynthArgs {
     /// Leave the exact normals out of the scans.
     #[arg(long)]
     pub no_normals: bool,
+    /// Write a depth-camera stream of this many frames instead of scans (room scene): a
+    /// camera loop with structured-light noise, 16-bit PNG frames, trajectory.log,
+    /// intrinsics.txt and, with --reference-rays, the ground truth per pixel in truth/.
+    #[arg(long, default_value_t = 0)]
+    pub frames: u32,
 }
 
 /// `X,Y,Z` as a finite point.

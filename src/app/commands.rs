@@ -105,6 +105,8 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
         Command::Eval(args) => eval(args),
         Command::Sweep(args) => sweep(args),
         Command::Plot(args) => plot(args),
+        Command::Stream(args) => super::stream::run(args),
+        Command::Synth(args) if args.frames > 0 => super::stream::synth(args),
         Command::Synth(args) => {
             let opts = args.into_options().map_err(anyhow::Error::msg)?;
             let summary = mvao::synth::run(&opts)?;

@@ -6,3 +6,4 @@ pub mod bars;
 pub mod cli;
 pub mod commands;
 pub mod info;
+pub mod stream;

@@ -1,0 +1,285 @@
+use super::clean::{clean, CleanParams};
+use super::frames::{DepthFrame, Intrinsics};
+use super::grid::{morton, unmorton, VoxelGrid, BIAS};
+use super::*;
+use glam::{DMat4, DVec3, Vec3};
+use std::collections::HashMap;
+
+#[test]
+fn morton_keys_round_trip() {
+    let mut cells = vec![
+        [0, 0, 0],
+        [-1, -1, -1],
+        [BIAS - 1, -BIAS, 7],
+        [-BIAS, BIAS - 1, -BIAS],
+        [12345, -54321, 999_999],
+    ];
+    let mut x = 0x1234_5678_u64;
+    for _ in 0..1000 {
+        x = crate::rng::splitmix64(x);
+        let c = [0, 21, 42].map(|s| ((x >> s) & 0x1f_ffff) as i64 - BIAS);
+        cells.push(c);
+    }
+    for c in cells {
+        let k = morton(c).unwrap();
+        assert_eq!(unmorton(k), c, "key {k:#x}");
+    }
+    assert_eq!(morton([BIAS, 0, 0]), None);
+    assert_eq!(morton([0, -BIAS - 1, 0]), None);
+    // Neighbouring cells along x differ in the lowest bit of the interleave.
+    assert_eq!(morton([1, 0, 0]).unwrap() ^ morton([0, 0, 0]).unwrap(), 1);
+}
+
+#[test]
+fn keys_cover_points_far_from_the_first_frames() {
+    let mut g = VoxelGrid::new(0.01);
+    g.add(DVec3::new(0.005, 0.005, 0.005), Vec3::Z, 0.5, 1.0);
+    g.add(DVec3::new(-9000.0, 5000.0, -300.0), Vec3::Z, 0.25, 2.0);
+    assert_eq!(g.len(), 2);
+    assert_eq!(g.out_of_range, 0);
+    let pts = g.points();
+    assert!(pts
+        .iter()
+        .any(|p| (p.position - DVec3::new(-9000.0, 5000.0, -300.0)).length() < 0.01));
+    g.add(DVec3::new(1e6, 0.0, 0.0), Vec3::Z, 0.5, 1.0);
+    assert_eq!(g.out_of_range, 1);
+}
+
+#[test]
+fn table_stays_under_128_bytes_per_voxel() {
+    let mut g = VoxelGrid::new(0.01);
+    let mut worst = 0.0f64;
+    for i in 0..200_000u64 {
+        let p = DVec3::new(
+            (i % 97) as f64,
+            ((i / 97) % 89) as f64,
+            (i / (97 * 89)) as f64,
+        ) * 0.01;
+        g.add(p + 0.005, Vec3::Z, 0.5, 1.0);
+        if i > 1000 && i % 997 == 0 {
+            worst = worst.max(g.table_bytes() as f64 / g.len() as f64);
+        }
+    }
+    assert!(worst <= 128.0, "{worst} bytes per voxel");
+}
+
+/// A frame of two planes facing the camera: depth `near` on the left half, `far` on the right.
+fn step_frame(w: usize, h: usize, near: f32, far: f32) -> Vec<f32> {
+    (0..w * h)
+        .map(|i| if i % w < w / 2 { near } else { far })
+        .collect()
+}
+
+#[test]
+fn cleaning_drops_one_band_each_side_of_a_5cm_step_and_nothing_at_1cm() {
+    let (w, h) = (16, 8);
+    let p = CleanParams::default();
+    let out = clean(&step_frame(w, h, 1.0, 1.05), w, h, &p);
+    for y in 0..h {
+        for x in 0..w {
+            let dropped = out[y * w + x] == 0.0;
+            assert_eq!(dropped, x == w / 2 - 1 || x == w / 2, "pixel {x},{y}");
+        }
+    }
+    let out = clean(&step_frame(w, h, 1.0, 1.01), w, h, &p);
+    assert!(out.iter().all(|&d| d > 0.0));
+    // Range limits.
+    let p2 = CleanParams {
+        max_range: 1.005,
+        ..p
+    };
+    let out = clean(&step_frame(w, h, 1.0, 1.01), w, h, &p2);
+    assert_eq!(out.iter().filter(|&&d| d > 0.0).count(), w * h / 2);
+}
+
+fn small_params() -> StreamParams {
+    let mut p = StreamParams {
+        voxel: 0.05,
+        history: false,
+        ssao_scale: 1,
+        ..StreamParams::default()
+    };
+    p.clean.edge = 0.15;
+    p
+}
+
+#[test]
+fn one_frame_gives_each_voxel_the_weighted_mean_of_its_pixels() {
+    use super::synth::{look_pose, synth_stream, StreamSynthOptions};
+    let scene = crate::synth::Scene::room();
+    let pose = look_pose(DVec3::new(0.0, 0.0, 1.5), DVec3::new(-1.0, 0.6, -0.4));
+    let o = StreamSynthOptions {
+        width: 64,
+        height: 48,
+        truth_rays: 0,
+        ..StreamSynthOptions::default()
+    };
+    let s = synth_stream(&scene, &[pose], &o);
+    let mut it = Integrator::new(small_params(), s.intrinsics);
+    let (geo, ao, _) = it.clone().frame_ssao(&s.frames[0], pose);
+    let st = it.add_frame(&s.frames[0], pose);
+    assert!(st.integrated > 1000, "{st:?}");
+    let p = it.params.clean;
+    let mut sums: HashMap<u64, (f64, f64)> = HashMap::new();
+    for (i, a) in ao.iter().enumerate() {
+        let (Some(a), true) = (*a, geo.is_valid(i)) else {
+            continue;
+        };
+        let w = frame::weight(geo.points[i], geo.normals[i], p.min_range, p.max_range);
+        if !(w > 0.0) {
+            continue;
+        }
+        let k = it
+            .grid
+            .key_of(pose.transform_point3(geo.points[i].as_dvec3()))
+            .unwrap();
+        let e = sums.entry(k).or_default();
+        e.0 += (a * w) as f64;
+        e.1 += w as f64;
+    }
+    assert_eq!(sums.len(), it.grid.len());
+    for vp in it.grid.points() {
+        let (aw, w) = sums[&vp.key];
+        assert!(
+            (vp.ao as f64 - aw / w).abs() < 1e-5,
+            "{} vs {}",
+            vp.ao,
+            aw / w
+        );
+    }
+}
+
+#[test]
+fn without_history_frame_order_does_not_matter() {
+    use super::synth::{room_trajectory, synth_stream, StreamSynthOptions};
+    let o = StreamSynthOptions {
+        frames: 12,
+        width: 48,
+        height: 36,
+        truth_rays: 0,
+        ..StreamSynthOptions::default()
+    };
+    let s = synth_stream(&crate::synth::Scene::room(), &room_trajectory(12), &o);
+    let run = |order: Vec<usize>| {
+        let mut it = Integrator::new(small_params(), s.intrinsics);
+        for i in order {
+            it.add_frame(&s.frames[i], s.poses[i]);
+        }
+        it.grid.points()
+    };
+    let a = run((0..12).collect());
+    let b = run((0..12).rev().collect());
+    assert_eq!(a.len(), b.len());
+    assert!(a.len() > 500);
+    for (p, q) in a.iter().zip(&b) {
+        assert_eq!(p.key, q.key);
+        assert!((p.ao - q.ao).abs() < 1e-5);
+        assert!((p.position - q.position).length() < 1e-5);
+    }
+}
+
+#[test]
+fn checkpoint_round_trips() {
+    let mut g = VoxelGrid::new(0.02);
+    for i in 0..500 {
+        let f = i as f64;
+        g.add(
+            DVec3::new(f * 0.013, -f * 0.007, 1.0),
+            Vec3::Y,
+            0.3 + 0.001 * f as f32,
+            0.5,
+        );
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("ck");
+    let head = grid::CheckpointHead {
+        frames_done: 7,
+        settings: 42,
+    };
+    grid::write_checkpoint(&p, &g, head).unwrap();
+    let (g2, h2) = grid::read_checkpoint(&p).unwrap();
+    assert_eq!(h2, head);
+    assert_eq!(g.points(), g2.points());
+}
+
+#[test]
+fn depth_png_round_trips_and_intrinsics_parse() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("d.png");
+    let f = DepthFrame {
+        width: 3,
+        height: 2,
+        depth: vec![0.0, 1.0, 1.234, 65.535, 2.5, 0.001],
+    };
+    frames::write_depth_png(&p, &f, 1000.0).unwrap();
+    let g = frames::read_depth_png(&p, 1000.0).unwrap();
+    assert_eq!(g.width, 3);
+    for (a, b) in f.depth.iter().zip(&g.depth) {
+        assert!((a - b).abs() < 1e-6);
+    }
+    let k = frames::parse_intrinsics("525 525 319.5 239.5").unwrap();
+    assert_eq!(
+        k,
+        Intrinsics {
+            fx: 525.0,
+            fy: 525.0,
+            cx: 319.5,
+            cy: 239.5
+        }
+    );
+    let j = dir.path().join("cam.json");
+    std::fs::write(
+        &j,
+        r#"{"width": 640, "height": 480, "intrinsic_matrix": [525, 0, 0, 0, 525, 0, 319.5, 239.5, 1]}"#,
+    )
+    .unwrap();
+    assert_eq!(frames::parse_intrinsics(j.to_str().unwrap()).unwrap(), k);
+    assert!(frames::parse_intrinsics("1 2 3").is_err());
+}
+
+#[test]
+fn tum_and_log_trajectories_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let tum = dir.path().join("t.txt");
+    std::fs::write(
+        &tum,
+        "# comment\n1.0 1 2 3 0 0 0 1\n2.0 0 0 0 0 0 0.7071068 0.7071068\n",
+    )
+    .unwrap();
+    let t = frames::read_trajectory(&tum).unwrap();
+    assert_eq!(t.stamps, vec![1.0, 2.0]);
+    assert_eq!(t.poses[0].w_axis.truncate(), DVec3::new(1.0, 2.0, 3.0));
+    let x = t.poses[1].transform_vector3(DVec3::X);
+    assert!((x - DVec3::Y).length() < 1e-6);
+    let log = dir.path().join("t.log");
+    std::fs::write(&log, "0 0 1\n1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+    let t = frames::read_trajectory(&log).unwrap();
+    assert_eq!(
+        t.poses,
+        vec![DMat4::from_translation(DVec3::new(0.5, 0.0, 0.0))]
+    );
+    std::fs::write(&log, "0 0 1\n1 0 0 0.5\n0 1 0 x\n0 0 1 0\n0 0 0 1\n").unwrap();
+    let e = frames::read_trajectory(&log).unwrap_err().to_string();
+    assert!(e.contains("t.log") && e.contains("line 3"), "{e}");
+}
+
+#[test]
+fn frame_pixels_project_back_to_their_own_pixels() {
+    let k = Intrinsics {
+        fx: 100.0,
+        fy: 90.0,
+        cx: 31.5,
+        cy: 23.5,
+    };
+    let proj = frame::projection(&k, 64, 48);
+    let depth = vec![2.0f32; 64 * 48];
+    let pts = frame::unproject(&depth, 64, &k);
+    for (i, p) in pts.iter().enumerate() {
+        let pr = proj.project(*p).unwrap();
+        assert_eq!(proj.pixel_index(pr.x, pr.y), Some(i));
+    }
+    let n = frame::depth_normals(&pts, 64, 48);
+    assert!(n
+        .iter()
+        .all(|v| (*v - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-5));
+}
