@@ -74,6 +74,33 @@ pub fn visibility_weight(n: glam::Vec3, v: glam::Vec3, len: f32) -> f32 {
     1.0 - (n.dot(v) / len).max(0.0)
 }
 
+/// The map an estimator returns when it cannot march `g` with `proj`: every pixel open; valid
+/// pixels flagged when the projection's size differs from the G-buffer's (or the map is too
+/// large to index with `i32`); `None` when the inputs can be marched.
+pub(crate) fn unmarchable(g: &GBuffer, proj: &Projection) -> Option<AoMap> {
+    let n = g.width * g.height;
+    let consistent = [
+        g.point.len(),
+        g.position.len(),
+        g.normal.len(),
+        g.depth.len(),
+    ]
+    .iter()
+    .all(|&l| l == n);
+    let fits = proj.width == g.width && proj.height == g.height && n <= i32::MAX as usize;
+    if g.width != 0 && consistent && fits {
+        return None;
+    }
+    let ao = crate::par::filled(n, 1.0f32);
+    let mut no_sample = crate::par::filled(n, false);
+    if g.width != 0 && consistent {
+        for (i, f) in no_sample.iter_mut().enumerate() {
+            *f = g.is_valid(i);
+        }
+    }
+    Some(AoMap { ao, no_sample })
+}
+
 /// Computes the AO map of a view with the chosen estimator, then blurs it.
 pub fn compute(g: &GBuffer, proj: &Projection, p: &SsaoParams) -> AoMap {
     let mut map = match p.estimator {

@@ -93,27 +93,12 @@ pub fn applies(prm: &SsaoParams) -> bool {
 /// Computes the unblurred plain ambient occlusion of every valid pixel from `4 × directions`
 /// line families (at most 64). A projection whose size differs from the G-buffer's flags every valid pixel.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
+    if let Some(map) = super::unmarchable(g, proj) {
+        return map;
+    }
     let n = g.width * g.height;
     let mut ao = crate::par::filled(n, 1.0f32);
     let mut flag = crate::par::filled(n, false);
-    let consistent = [g.point.len(), g.position.len(), g.normal.len()]
-        .iter()
-        .all(|&l| l == n);
-    if g.width == 0 || !consistent {
-        return AoMap {
-            ao,
-            no_sample: flag,
-        };
-    }
-    if proj.width != g.width || proj.height != g.height {
-        for (i, f) in flag.iter_mut().enumerate() {
-            *f = g.is_valid(i);
-        }
-        return AoMap {
-            ao,
-            no_sample: flag,
-        };
-    }
     let k = (4 * prm.directions.max(1) as usize).min(MAX_FAMILIES);
     let fams: Vec<Family> = (0..k).map(|f| Family::new(g, proj, f, k)).collect();
     let pts: Vec<Vec3A> = g.position.iter().map(|&p| Vec3A::from(p)).collect();

@@ -108,32 +108,12 @@ mod lanes;
 /// falloff `prm.tmax`, per-pixel patterns from `prm.seed`. A projection whose size differs from
 /// the G-buffer's cannot be marched: every valid pixel is then flagged.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
+    if let Some(map) = super::unmarchable(g, proj) {
+        return map;
+    }
     let n = g.width * g.height;
     let mut ao = crate::par::filled(n, 1.0f32);
     let mut flag = crate::par::filled(n, false);
-    let consistent = [
-        g.point.len(),
-        g.position.len(),
-        g.normal.len(),
-        g.depth.len(),
-    ]
-    .iter()
-    .all(|&l| l == n);
-    if g.width == 0 || !consistent {
-        return AoMap {
-            ao,
-            no_sample: flag,
-        };
-    }
-    if proj.width != g.width || proj.height != g.height || n > i32::MAX as usize {
-        for (i, f) in flag.iter_mut().enumerate() {
-            *f = g.is_valid(i);
-        }
-        return AoMap {
-            ao,
-            no_sample: flag,
-        };
-    }
     let pts = positions(g);
     let ctx = Ctx::new(g, &pts, proj, prm);
     // Bands of BAND rows in parallel, each walked in TILE-wide column blocks: neighbouring
