@@ -440,7 +440,8 @@ pub struct SynthArgs {
     /// Map height in pixels [default: equirect 720, perspective/ortho 768].
     #[arg(long, default_value_t = 0, hide_default_value = true)]
     pub height: usize,
-    /// Gaussian range noise sigma, metres.
+    /// Gaussian range noise sigma, metres. With --frames, a scale of the structured-light
+    /// camera's depth-dependent noise instead (0 or unset = 1, the camera as modelled).
     #[arg(long, default_value_t = 0.0)]
     pub noise: f64,
     /// Seed of the noise.
