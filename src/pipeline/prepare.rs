@@ -114,3 +114,58 @@ pub fn summarize(s: &Scan, v: &PreparedView, file: &str) -> Result<Summary> {
         times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::merge::MergeParams;
+    use crate::pipeline::occlusion::prepare_view;
+    use crate::ssao::SsaoParams;
+    use crate::store::{MemoryStore, ViewStore};
+    use crate::synth::{scan_scene, Scene, Station};
+    use std::sync::Arc;
+
+    #[test]
+    fn a_stored_view_comes_back_as_it_was_put() {
+        let station = Station::equirect(glam::DVec3::new(0.0, 0.0, 1.5), 0.0, 120, 60);
+        let mut scan = scan_scene(&Scene::room(), &station, 0.0, 1, "s");
+        scan.pose = station.pose();
+        let sp = SsaoParams {
+            estimator: crate::ssao::Estimator::Horizon,
+            radius: 0.2,
+            tmax: 0.4,
+            falloff: Default::default(),
+            samples: 8,
+            directions: 4,
+            steps: 4,
+            seed: 1,
+            blur: true,
+        };
+        let v = prepare_view(&scan, crate::sensor::ProjectionChoice::Auto, &sp).unwrap();
+        let sum = summarize(&scan, &v, "s").unwrap();
+        let mut store = MemoryStore::new(2);
+        assert!(!store.is_current(0));
+        assert!(
+            store.points(0, None).is_err(),
+            "a view asked for before it was put"
+        );
+        store.put(0, None, sum.clone(), v.clone()).unwrap();
+        assert!(store.is_current(0) && !store.is_current(1));
+        assert_eq!(store.summary(0).unwrap().points, scan.len());
+        let p = store.points(0, None).unwrap();
+        assert_eq!((p.radii, p.pixel), (v.radii.clone(), v.pixel.clone()));
+        let prm = MergeParams {
+            neighbors: 1,
+            dmin: 0.0,
+            dmax: 10.0,
+            border_px: 64.0,
+        };
+        let m = store.maps(0, scan.pose, &prm).unwrap();
+        assert_eq!(m.ao, v.ssao.ao);
+        assert!(m.view(scan.pose).is_some(), "maps come placed");
+        // Asked again: the same placed maps, not a second copy.
+        assert!(Arc::ptr_eq(&m, &store.maps(0, scan.pose, &prm).unwrap()));
+        let views = store.into_views();
+        assert!(views[0].is_some() && views[1].is_none());
+    }
+}

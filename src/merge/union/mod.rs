@@ -35,9 +35,6 @@
 //! own surface as that view sampled it (with its noise and registration error), and is
 //! ignored; a wall meeting the surface (a normal far from `n`) still counts.
 
-#[cfg(test)]
-mod tests;
-
 use super::{View, ViewMaps};
 use crate::falloff::Falloff;
 use crate::gbuffer::EMPTY;

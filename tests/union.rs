@@ -1,12 +1,12 @@
 //! Union occlusion against analytic ground truth: synthetic stations of small scenes, the
 //! truth ray-cast against the exact primitives.
 
-use super::*;
-use crate::config::ComputeParams;
-use crate::pipeline::{compute, ScanResult};
-use crate::progress::Silent;
-use crate::synth::{scan_with_truth, Prim, Scene, Station, Truth};
 use glam::DVec3;
+use mvao::config::ComputeParams;
+use mvao::pipeline::{compute, ScanResult};
+use mvao::progress::Silent;
+use mvao::synth::{scan_with_truth, Prim, Scene, Station, Truth};
+use mvao::Occlusion;
 
 /// Runs the stations of `scene` through the in-memory pipeline.
 fn run(
