@@ -17,7 +17,7 @@ pub struct StreamArgs {
     #[arg(required = true)]
     pub frames: Vec<PathBuf>,
     /// Camera trajectory: Open3D/Redwood `.log`, or TUM (`timestamp tx ty tz qx qy qz qw`,
-    /// matched to frames by order, or by the timestamp in each frame's file name).
+    /// matched to each frame by the timestamp its file name holds, else by order).
     #[arg(long, short = 't', value_name = "FILE")]
     pub trajectory: PathBuf,
     /// Pinhole intrinsics `"fx fy cx cy"` (pixels), or an Open3D camera JSON file.

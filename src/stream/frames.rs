@@ -289,27 +289,59 @@ fn read_log(path: &Path, lines: &[(usize, &str)]) -> Result<Trajectory> {
     Ok(t)
 }
 
-/// The pose of each of `frames` from trajectory `traj` read from `path`: by order when the
-/// counts agree, else (TUM only) by the nearest timestamp to the number in each frame's file
-/// name within `max_dt` seconds. Errors name the trajectory.
+/// The pose of each of `frames` from trajectory `traj` read from `path`. A TUM trajectory is
+/// matched by time when every frame's file name is a timestamp with a pose within `max_dt`
+/// seconds (the nearest one), since a camera's poses and depth frames rarely come at the
+/// same instants even when their counts agree; otherwise, and for `.log` files, by order,
+/// which needs as many poses as frames. Errors name the trajectory.
 pub fn match_poses(
     frames: &[PathBuf],
     traj: &Trajectory,
     path: &Path,
     max_dt: f64,
 ) -> Result<Vec<DMat4>> {
-    if traj.poses.len() == frames.len() {
-        return Ok(traj.poses.clone());
+    let by_time = match_by_time(frames, traj, max_dt);
+    match by_time {
+        Ok(poses) => return Ok(poses),
+        Err(_) if traj.poses.len() == frames.len() => return Ok(traj.poses.clone()),
+        Err(_) => {}
     }
+    let why = match by_time {
+        Err(Unmatched::NotTum) => "a .log trajectory is matched by order".to_string(),
+        Err(Unmatched::NoStamp(f)) => {
+            format!("and frame {} has no timestamp as its name", f.display())
+        }
+        Err(Unmatched::TooFar(f, dt)) => format!(
+            "and frame {}'s nearest pose is {dt:.3} s away (--max-dt {max_dt})",
+            f.display()
+        ),
+        Ok(_) => unreachable!("matched frames returned above"),
+    };
+    Err(Error::format(
+        path,
+        format!(
+            "{} poses for {} depth frames, {why}",
+            traj.poses.len(),
+            frames.len()
+        ),
+    ))
+}
+
+/// Why frames could not be matched to a trajectory by time.
+enum Unmatched<'a> {
+    NotTum,
+    NoStamp(&'a Path),
+    TooFar(&'a Path, f64),
+}
+
+/// Each frame's pose by the nearest timestamp to the number its file name holds.
+fn match_by_time<'a>(
+    frames: &'a [PathBuf],
+    traj: &Trajectory,
+    max_dt: f64,
+) -> std::result::Result<Vec<DMat4>, Unmatched<'a>> {
     if traj.stamps.is_empty() {
-        return Err(Error::format(
-            path,
-            format!(
-                "{} poses for {} depth frames (a .log trajectory is matched by order)",
-                traj.poses.len(),
-                frames.len()
-            ),
-        ));
+        return Err(Unmatched::NotTum);
     }
     frames
         .iter()
@@ -318,28 +350,16 @@ pub fn match_poses(
                 .file_stem()
                 .and_then(|s| s.to_str())
                 .and_then(|s| s.parse::<f64>().ok())
-                .ok_or_else(|| {
-                    Error::format(
-                        path,
-                        format!(
-                            "{} poses for {} frames, and frame {} has no timestamp as its name",
-                            traj.poses.len(),
-                            frames.len(),
-                            f.display()
-                        ),
-                    )
-                })?;
+                .filter(|s| s.is_finite())
+                .ok_or(Unmatched::NoStamp(f))?;
             let (k, dt) = traj
                 .stamps
                 .iter()
                 .enumerate()
                 .map(|(k, s)| (k, (s - stamp).abs()))
                 .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-            if dt > max_dt {
-                return Err(Error::format(
-                    path,
-                    format!("no pose within {max_dt} s of frame {}", f.display()),
-                ));
+            if !(dt <= max_dt) {
+                return Err(Unmatched::TooFar(f, dt));
             }
             Ok(traj.poses[k])
         })

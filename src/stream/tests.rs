@@ -283,3 +283,72 @@ fn frame_pixels_project_back_to_their_own_pixels() {
         .iter()
         .all(|v| (*v - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-5));
 }
+
+/// A TUM trajectory of `n` poses at 30 Hz from `t0`, pose `k` translated to `x = k`.
+fn tum_trajectory(t0: f64, n: usize) -> frames::Trajectory {
+    frames::Trajectory {
+        poses: (0..n)
+            .map(|k| DMat4::from_translation(DVec3::new(k as f64, 0.0, 0.0)))
+            .collect(),
+        stamps: (0..n).map(|k| t0 + k as f64 / 30.0).collect(),
+    }
+}
+
+fn xs(poses: &[DMat4]) -> Vec<f64> {
+    poses.iter().map(|p| p.w_axis.x).collect()
+}
+
+#[test]
+fn tum_poses_are_matched_to_timestamped_frames_by_time() {
+    let traj = tum_trajectory(1305031102.0, 30);
+    let path = std::path::Path::new("groundtruth.txt");
+    let named = |ts: &[f64]| -> Vec<std::path::PathBuf> {
+        ts.iter()
+            .map(|t| format!("depth/{t:.6}.png").into())
+            .collect()
+    };
+    // Fewer frames than poses, each 4 ms off a pose: the nearest one.
+    let f = named(&[1305031102.004, 1305031102.329, 1305031102.670]);
+    let p = frames::match_poses(&f, &traj, path, 0.02).unwrap();
+    assert_eq!(xs(&p), vec![0.0, 10.0, 20.0]);
+    // As many frames as poses but starting later: time, not order, decides.
+    let ts: Vec<f64> = (0..30)
+        .map(|k| 1305031102.0 + (k + 5).min(29) as f64 / 30.0)
+        .collect();
+    let p = frames::match_poses(&named(&ts), &traj, path, 0.02).unwrap();
+    assert_eq!(p[0].w_axis.x, 5.0);
+    assert_eq!(p[29].w_axis.x, 29.0);
+    // A frame far from every pose is refused, naming the trajectory and the frame.
+    let f = named(&[1305031102.004, 1305031109.0]);
+    let e = frames::match_poses(&f, &traj, path, 0.02)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("groundtruth.txt")
+            && e.contains("1305031109.000000.png")
+            && e.contains("s away"),
+        "{e}"
+    );
+}
+
+#[test]
+fn frames_without_timestamps_are_matched_by_order_only_when_counts_agree() {
+    let traj = tum_trajectory(1305031102.0, 3);
+    let path = std::path::Path::new("groundtruth.txt");
+    let f: Vec<std::path::PathBuf> = (0..3).map(|k| format!("{k:05}.png").into()).collect();
+    let p = frames::match_poses(&f, &traj, path, 0.02).unwrap();
+    assert_eq!(xs(&p), vec![0.0, 1.0, 2.0]);
+    let e = frames::match_poses(&f[..2], &traj, path, 0.02)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("3 poses for 2 depth frames"), "{e}");
+    // A .log trajectory carries no times.
+    let log = frames::Trajectory {
+        stamps: Vec::new(),
+        ..traj
+    };
+    let e = frames::match_poses(&f[..2], &log, std::path::Path::new("t.log"), 0.02)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("t.log") && e.contains("matched by order"), "{e}");
+}
