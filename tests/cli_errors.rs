@@ -468,3 +468,32 @@ fn issue_33_bad_streams_are_refused() {
     assert!(out.join("report.json").exists() && out.join("stream.ply").exists());
     assert!(!out.join("stream.checkpoint").exists());
 }
+
+/// Coordinates given as comma lists may start with a minus sign.
+#[test]
+fn negative_coordinates_are_values_not_flags() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("porch");
+    mvao_ok(&[
+        "synth",
+        "--scene",
+        "porch",
+        "--projection",
+        "perspective",
+        "--stations",
+        "1",
+        "--width",
+        "24",
+        "--height",
+        "16",
+        "--at",
+        "-1.5,-6,1.6",
+        "--look-at",
+        "-0.5,0,1",
+        "-o",
+        &s(&out),
+    ]);
+    let head = std::fs::read(out.join("station_000.ply")).unwrap();
+    let text = String::from_utf8_lossy(&head[..400.min(head.len())]).into_owned();
+    assert!(text.contains("station position -1.5"), "{text}");
+}

@@ -167,3 +167,71 @@ fn issue_33_a_stopped_stream_resumes_from_its_checkpoint() {
     let b = std::fs::read(d.path().join("resumed/stream.ply")).unwrap();
     assert!(a == b, "resumed output differs");
 }
+
+/// See issue 33: `--grid N --bounds …` sets the voxel to the bounds' longest side over N,
+/// and LAS output holds the same voxel points and grey colours as the PLY.
+#[test]
+fn issue_33_grid_bounds_and_las_output() {
+    use mvao::io::ply::PlyFile;
+    let d = tempfile::tempdir().unwrap();
+    let s = room_stream(6, 48, 36, 0);
+    mvao::stream::synth::write_stream(&s, d.path()).unwrap();
+    let k = std::fs::read_to_string(d.path().join("intrinsics.txt")).unwrap();
+    let run = |out: &str, extra: &[&str]| {
+        let o = d.path().join(out);
+        let mut a: Vec<String> = vec![
+            "stream".into(),
+            d.path().join("depth").display().to_string(),
+            "-t".into(),
+            d.path().join("trajectory.log").display().to_string(),
+            "--intrinsics".into(),
+            k.trim().into(),
+            "--no-preview".into(),
+            "-q".into(),
+            "-o".into(),
+            o.display().to_string(),
+        ];
+        a.extend(extra.iter().map(|x| x.to_string()));
+        let r = std::process::Command::new(env!("CARGO_BIN_EXE_mvao"))
+            .args(&a)
+            .output()
+            .unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let rep: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(o.join("report.json")).unwrap()).unwrap();
+        (o, rep)
+    };
+    // Bounds 6.4 m along x: 128 voxels of 5 cm, the same grid as `--voxel 0.05`.
+    let (g, rep_g) = run("grid", &["--grid", "128", "--bounds", "-3.2,-2,0,3.2,2,3"]);
+    assert!((rep_g["params"]["voxel"].as_f64().unwrap() - 0.05).abs() < 1e-12);
+    let (v, rep_v) = run("voxel", &["--voxel", "0.05"]);
+    assert_eq!(rep_g["voxels"], rep_v["voxels"]);
+    let a = std::fs::read(g.join("stream.ply")).unwrap();
+    assert!(a == std::fs::read(v.join("stream.ply")).unwrap());
+    // The same grid written as LAS.
+    let (l, _) = run("las", &["--voxel", "0.05", "--format", "las"]);
+    let ply = PlyFile::from_path(&v.join("stream.ply")).unwrap();
+    let las_file = std::fs::read_dir(&l)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "las"))
+        .expect("a .las output");
+    let pts = las::Reader::from_path(&las_file)
+        .unwrap()
+        .read_all()
+        .unwrap();
+    let n = rep_v["voxels"].as_u64().unwrap() as usize;
+    assert_eq!(pts.len(), n);
+    let col = |name: &str| ply.scalar_column("vertex", name).unwrap();
+    let (x, y, z, red) = (col("x"), col("y"), col("z"), col("red"));
+    let rgb: Vec<(u16, u16, u16)> = pts.rgb().expect("LAS colours").collect();
+    let xyz = pts.x().zip(pts.y()).zip(pts.z());
+    for (i, ((px, py), pz)) in xyz.enumerate() {
+        assert_eq!(rgb[i].0 >> 8, red[i] as u16, "point {i}");
+        let d = (px - x[i])
+            .abs()
+            .max((py - y[i]).abs())
+            .max((pz - z[i]).abs());
+        assert!(d < 1e-3, "point {i}: {d}");
+    }
+}

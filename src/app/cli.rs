@@ -462,10 +462,10 @@ pub struct SynthArgs {
     pub reference_falloff: Falloff,
     // Mesh scenes.
     /// Mesh scenes: a station position `X,Y,Z` (repeat for more; used in turn).
-    #[arg(long = "at", value_name = "X,Y,Z", value_parser = parse_xyz)]
+    #[arg(long = "at", value_name = "X,Y,Z", value_parser = parse_xyz, allow_hyphen_values = true)]
     pub at: Vec<DVec3>,
     /// Mesh scenes: where perspective stations look (`X,Y,Z`).
-    #[arg(long, value_name = "X,Y,Z", value_parser = parse_xyz)]
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_xyz, allow_hyphen_values = true)]
     pub look_at: Option<DVec3>,
     /// Mesh scenes: registration error put into each station's pose, `METRES,DEGREES` (a
     /// random rigid shift and rotation of exactly that size per station).

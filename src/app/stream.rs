@@ -34,7 +34,7 @@ pub struct StreamArgs {
     #[arg(long, requires = "bounds")]
     pub grid: Option<u32>,
     /// Scene bounds `X0,Y0,Z0,X1,Y1,Z1` (metres) for `--grid`.
-    #[arg(long, value_name = "X0,Y0,Z0,X1,Y1,Z1")]
+    #[arg(long, value_name = "X0,Y0,Z0,X1,Y1,Z1", allow_hyphen_values = true)]
     pub bounds: Option<String>,
     /// Cleaning: drop a pixel whose 8-neighbours' depth differs by more than this (metres).
     #[arg(long, default_value_t = 0.02)]
