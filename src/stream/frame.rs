@@ -189,20 +189,28 @@ pub fn downsample(
     (out, w, h)
 }
 
-/// Per-pixel SSAO of a frame at full resolution from its geometry at `1/factor` of it:
-/// each full-resolution pixel reads its block's value; `None` where the block had no value.
+/// Per-pixel SSAO of a frame at full resolution (`own`, the frame's full-resolution
+/// geometry, intrinsics `k`) from its geometry at `1/factor` of it: each pixel reads its
+/// block's value. A pixel whose block has none (a block mostly emptied by the cleaning, or
+/// without a normal) takes the value of the neighbouring block whose point lies nearest to
+/// its own, when that is within two block widths at the pixel's depth, so the pixels the
+/// cleaning kept are not lost for sitting in a sparse block while a depth edge still
+/// separates blocks; `None` where no block qualifies.
 pub fn frame_ssao(
     low: &FrameGeometry,
     k_low: &Intrinsics,
     p: &SsaoParams,
-    width: usize,
-    height: usize,
+    own: &FrameGeometry,
+    k: &Intrinsics,
     factor: usize,
 ) -> Vec<Option<f32>> {
     let g = gbuffer(low, k_low);
     let proj = projection(k_low, low.width, low.height);
     let map = ssao::compute(&g, &proj, p);
     let f = factor.max(1);
+    let (width, height) = (own.width, own.height);
+    let value = |j: usize| (g.point[j] != EMPTY && !map.no_sample[j]).then_some(map.ao[j]);
+    let reach = 2.0 * f as f32 / k.fx.max(k.fy) as f32;
     (0..width * height)
         .into_par_iter()
         .map(|i| {
@@ -211,7 +219,26 @@ pub fn frame_ssao(
                 return None;
             }
             let j = y * low.width + x;
-            (g.point[j] != EMPTY && !map.no_sample[j]).then_some(map.ao[j])
+            if let Some(a) = value(j) {
+                return Some(a);
+            }
+            if f == 1 || !own.is_valid(i) {
+                return None;
+            }
+            let q = own.points[i];
+            let limit = (reach * q.z).powi(2);
+            let mut best: Option<(f32, f32)> = None;
+            for ny in y.saturating_sub(1)..(y + 2).min(low.height) {
+                for nx in x.saturating_sub(1)..(x + 2).min(low.width) {
+                    let jj = ny * low.width + nx;
+                    let Some(a) = value(jj) else { continue };
+                    let d2 = g.position[jj].distance_squared(q);
+                    if d2 <= limit && best.is_none_or(|b| d2 < b.0) {
+                        best = Some((d2, a));
+                    }
+                }
+            }
+            best.map(|b| b.1)
         })
         .collect()
 }

@@ -44,7 +44,7 @@ pub fn render(
             continue;
         }
         let (u, v) = (fx * q.x / q.z + cx, fy * q.y / q.z + cy);
-        let s = (0.5 * voxel * fx.max(fy) / q.z).ceil().max(1.0);
+        let s = (0.5 * voxel * fx.max(fy) / q.z).round();
         let (x0, x1) = (
             (u - s).round().max(0.0),
             (u + s).round().min(width as f32 - 1.0),

@@ -177,7 +177,7 @@ impl Integrator {
             own_low
         };
         self.times.history += lap(&mut t);
-        let ao = frame::frame_ssao(&low, &k_low, &p.ssao, w, h, f);
+        let ao = frame::frame_ssao(&low, &k_low, &p.ssao, &geo, &k, f);
         self.times.ssao += lap(&mut t);
         let st = FrameStats {
             measured: frame.depth.iter().filter(|&&d| d > 0.0).count() as u64,

@@ -352,3 +352,47 @@ fn frames_without_timestamps_are_matched_by_order_only_when_counts_agree() {
         .to_string();
     assert!(e.contains("t.log") && e.contains("matched by order"), "{e}");
 }
+
+/// A 16 × 16 z-depth frame at `z`, with the pixels of block (1, 1) of 4 × 4 set to `zs`
+/// except one in four, so that block is too sparse for a reduced-resolution value.
+fn sparse_block_frame(z: f32, zs: f32) -> Vec<f32> {
+    let mut d = vec![z; 256];
+    for y in 4..8 {
+        for x in 4..8 {
+            d[y * 16 + x] = if x % 2 == 0 && y % 2 == 0 { zs } else { 0.0 };
+        }
+    }
+    d
+}
+
+#[test]
+fn kept_pixels_of_a_sparse_block_read_a_neighbour_on_their_surface_only() {
+    // Blocks 12.5 cm wide at 2 m: a neighbour may lend its value within 25 cm.
+    let k = Intrinsics {
+        fx: 64.0,
+        fy: 64.0,
+        cx: 7.5,
+        cy: 7.5,
+    };
+    let p = small_params().ssao;
+    let values = |zs: f32| {
+        let depth = sparse_block_frame(2.0, zs);
+        let own = frame::geometry(&depth, 16, 16, &k);
+        let (low, lw, lh) = frame::downsample(&depth, 16, 16, 4);
+        let low = frame::geometry(&low, lw, lh, &k.scaled_down(4));
+        let ao = frame::frame_ssao(&low, &k.scaled_down(4), &p, &own, &k, 4);
+        (own, ao)
+    };
+    // On the plane: every kept pixel of the sparse block gets a value.
+    let (own, ao) = values(2.0);
+    let block: Vec<usize> = (0..256)
+        .filter(|i| (4..8).contains(&(i % 16)) && (4..8).contains(&(i / 16)) && own.is_valid(*i))
+        .collect();
+    assert!(!block.is_empty());
+    assert!(block.iter().all(|&i| ao[i].is_some()), "{ao:?}");
+    // Half a metre in front of the plane: a depth edge, no value borrowed across it.
+    let (own, ao) = values(1.5);
+    let front: Vec<usize> = block.iter().copied().filter(|&i| own.is_valid(i)).collect();
+    assert!(!front.is_empty());
+    assert!(front.iter().all(|&i| ao[i].is_none()), "{ao:?}");
+}
