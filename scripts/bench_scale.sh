@@ -4,6 +4,11 @@
 # paper's castle (317 M points).
 #
 #   scripts/bench_scale.sh [STATIONS=24] [WIDTH=1440] [HEIGHT=720] [BUDGET=2G] [DIR=bench-scale] [SCENE=suite]
+#   scripts/bench_scale.sh survey [STATIONS=6] [DIR=bench-scale]
+#
+# `survey` is shaped like a real survey: courtyard stations of 2048×1024 with open sky
+# (unfilled pixels) and no normals in the files, so the run estimates them, under a 1G budget.
+# SYNTH_OPTS adds options to `mvao synth` in the other suites (`--no-normals`, …).
 #
 # REPEAT=N runs the job N times on the same site and prints every run and the range and
 # median: on a shared machine one run's time says little.
@@ -13,17 +18,25 @@
 # overlaps its neighbours' as on a real site; `room` puts every station in one room, where every
 # scan overlaps every other (the merge's worst case).
 set -euo pipefail
-stations="${1:-24}"; width="${2:-1440}"; height="${3:-720}"; budget="${4:-2G}"
-dir="${5:-bench-scale}"; scene="${6:-suite}"
+synth_opts="${SYNTH_OPTS:-}"
+if [ "${1:-}" = survey ]; then
+    stations="${2:-6}"; width=2048; height=1024; budget=1G
+    dir="${3:-bench-scale}"; scene=courtyard; synth_opts="--no-normals $synth_opts"
+else
+    stations="${1:-24}"; width="${2:-1440}"; height="${3:-720}"; budget="${4:-2G}"
+    dir="${5:-bench-scale}"; scene="${6:-suite}"
+fi
 here="$(cd "$(dirname "$0")" && pwd)"
 cd "$here/.."
 cargo build --release -q
 mvao="$PWD/target/release/mvao"
 mkdir -p "$dir"
-site="$dir/site-$scene-$stations-${width}x$height"
+tag="$(printf '%s' "$synth_opts" | tr -c 'a-z0-9' '-' | sed 's/--*/-/g; s/-$//')"
+site="$dir/site-$scene-$stations-${width}x$height$tag"
 if [ ! -f "$site/alignment.mlp" ]; then
     rm -rf "$site"
-    "$mvao" synth --scene "$scene" --stations "$stations" --width "$width" --height "$height" -o "$site"
+    "$mvao" synth --scene "$scene" --stations "$stations" --width "$width" --height "$height" \
+        $synth_opts -o "$site"
 fi
 repeat="${REPEAT:-1}"
 for run in $(seq 1 "$repeat"); do
@@ -51,6 +64,7 @@ def line(r, cpu, rss):
 r, cpu, rss = runs[-1]
 wall, pts = r["totals"]["wall_s"], r["totals"]["points"]
 print(f"{len(r['scans'])} scans, {pts/1e6:.1f} M points, budget {budget}, {site}")
+print("occlusion: average (the default mode), --radius 0.2 --tmax 0.4")
 print(f"end to end: {wall:.1f} s = {pts/wall/1e6:.2f} M points/s")
 for k, v in sorted(r["timings_s"].items(), key=lambda kv: -kv[1]):
     print(f"  {k:<10} {v:8.1f} s")

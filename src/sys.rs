@@ -51,6 +51,7 @@ pub fn default_budget() -> u64 {
 /// The same holds for the few huge-page buffers [`crate::pagebuf`] keeps. One arena for all
 /// threads lets a buffer freed by one thread (a product writer) be reused by another.
 pub fn keep_freed_memory() {
+    KEEP_FREED.store(true, std::sync::atomic::Ordering::Relaxed);
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt sets three of glibc's allocator parameters (plain integers, under the main
     // arena's lock); an allocation running on another thread meanwhile follows the old value
@@ -61,6 +62,24 @@ pub fn keep_freed_memory() {
         libc::mallopt(libc::M_ARENA_MAX, 1);
     }
     crate::pagebuf::keep_freed();
+}
+
+/// Set once [`keep_freed_memory`] has been called.
+static KEEP_FREED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Hands the memory the allocator holds free back to the system, unless it was asked to keep
+/// it ([`keep_freed_memory`]). The map cache measures the resident memory held beside it: the
+/// freed buffers of a stage just over (a view's G-buffer, its SSAO passes) would otherwise
+/// count as held and leave no room for the views that fit.
+pub fn return_freed_memory() {
+    if KEEP_FREED.load(std::sync::atomic::Ordering::Relaxed) {
+        return;
+    }
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases free pages of glibc's arenas, under their locks.
+    unsafe {
+        libc::malloc_trim(0);
+    }
 }
 
 #[cfg(test)]

@@ -596,7 +596,7 @@ fn open_store(
     let keep = if cfg.prepare_only {
         vec![false; n]
     } else {
-        plan::views_to_keep(vb, need, 2 * floor, budget)
+        plan::views_to_keep(vb, need, floor, budget)
     };
     // The stage frees a file's held scans once it has taken them while the views it keeps
     // pile up: keep the held files (a prefix) for which the sum stays in the budget at every
@@ -608,7 +608,7 @@ fn open_store(
         })
         .collect();
     let held_of: Vec<u64> = (0..files.held.len()).map(|fi| files.held[&fi].2).collect();
-    let hold = plan::files_to_hold(&held_of, &file_views, 2 * floor, budget);
+    let hold = plan::files_to_hold(&held_of, &file_views, floor, budget);
     files.held.retain(|&fi, _| fi < hold);
     let work_dir = cfg
         .work_dir
@@ -642,7 +642,7 @@ fn open_store(
         overlap: 4 * planned.plan.largest_view_bytes + 5 * cat.max_file_bytes + (64 << 20)
             <= budget,
         keep,
-        keep_room: budget.saturating_sub(2 * floor),
+        keep_room: budget.saturating_sub(floor),
     };
     WorkDirStore::open(setup)
 }

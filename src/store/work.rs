@@ -303,6 +303,7 @@ struct MapCache {
 impl MapCache {
     /// Measures what the process holds beside the cache.
     fn measure(&mut self) {
+        crate::sys::return_freed_memory();
         self.outside = crate::sys::current_rss().map_or(0, |r| r.saturating_sub(self.used));
     }
 
