@@ -4,6 +4,7 @@
 use super::catalog::{changed, data_hash, Inputs};
 use super::occlusion::prepare_view;
 use crate::error::{Error, Result};
+use crate::products::manifest::InputRecord;
 use crate::progress::Observer;
 use crate::report::CatalogScan;
 use crate::scan::Scan;
@@ -11,6 +12,8 @@ use crate::sensor::ProjectionChoice;
 use crate::ssao::SsaoParams;
 use crate::store::{Summary, ViewStore};
 use crate::view::{depth_range, PreparedView};
+use rayon::prelude::*;
+use std::borrow::Cow;
 use std::time::Instant;
 
 /// What the prepare stage did.
@@ -26,8 +29,26 @@ pub struct Prepared {
     pub secs: f64,
 }
 
+/// Scans of at most this many points are prepared side by side, several at once: on a small
+/// scan the per-view stages cannot keep every core busy (the sensor fit and the stage set-up
+/// are serial), while a scan above it fills the cores on its own.
+pub const SMALL_SCAN_POINTS: usize = 1 << 18;
+
+/// Points of small scans gathered before they are prepared together: bounds the views held
+/// in memory beyond what the serial order holds.
+pub const BATCH_POINTS: usize = 1 << 20;
+
+/// Small scans read but not yet prepared, in input order.
+#[derive(Default)]
+struct Batch {
+    /// Per file: its name, fingerprint and scans, and the catalog entries to prepare.
+    files: Vec<(String, Option<InputRecord>, Vec<Scan>, Vec<usize>)>,
+    points: usize,
+}
+
 /// Prepares the views of the scans marked in `need` that `store` does not hold current, one
-/// input file at a time.
+/// input file at a time; small scans of consecutive files together (see [`SMALL_SCAN_POINTS`]).
+/// Views are stored in input order whatever order they are computed in.
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     cat: &[CatalogScan],
@@ -41,6 +62,7 @@ pub fn run(
     let t0 = Instant::now();
     obs.stage("prepare", cat.iter().map(|c| c.points as u64).sum());
     let mut out = Prepared::default();
+    let mut batch = Batch::default();
     let n = cat.len();
     for fi in 0..inputs.files() {
         let mine: Vec<usize> = (0..n).filter(|&i| cat[i].file == fi && need[i]).collect();
@@ -60,24 +82,86 @@ pub fn run(
             continue;
         }
         let name = inputs.name(fi);
-        let opened = inputs.for_prepare(fi)?;
-        out.bytes_read += opened.record.as_ref().map_or(0, |r| r.size);
-        for &i in &stale {
-            let s = &opened.scans[cat[i].index];
-            if opened.read_again && data_hash(s) != cat[i].data_hash {
-                return Err(changed(&name));
+        // A failure leaves the store as one scan at a time would: every earlier view put.
+        let opened = match inputs.for_prepare(fi) {
+            Ok(o) => o,
+            Err(e) => {
+                flush(&mut batch, cat, store, choice, sp, obs)?;
+                return Err(e);
             }
-            let v = prepare_view(s, choice, sp)?;
-            let sum = summarize(s, &v, &name)?;
-            store.put(i, opened.record.as_ref(), sum, v)?;
-            out.made += 1;
-            obs.advance(s.len() as u64);
+        };
+        out.bytes_read += opened.record.as_ref().map_or(0, |r| r.size);
+        let fresh = |&i: &usize| data_hash(&opened.scans[cat[i].index]) == cat[i].data_hash;
+        if opened.read_again && !stale.iter().all(fresh) {
+            flush(&mut batch, cat, store, choice, sp, obs)?;
+            return Err(changed(&name));
+        }
+        let small = stale
+            .iter()
+            .all(|&i| opened.scans[cat[i].index].len() <= SMALL_SCAN_POINTS);
+        match opened.scans {
+            Cow::Owned(scans) if small => {
+                batch.points += stale
+                    .iter()
+                    .map(|&i| scans[cat[i].index].len())
+                    .sum::<usize>();
+                batch.files.push((name, opened.record, scans, stale));
+                if batch.points >= BATCH_POINTS {
+                    out.made += flush(&mut batch, cat, store, choice, sp, obs)?;
+                }
+            }
+            scans => {
+                out.made += flush(&mut batch, cat, store, choice, sp, obs)?;
+                for &i in &stale {
+                    let s = &scans[cat[i].index];
+                    let v = prepare_view(s, choice, sp)?;
+                    let sum = summarize(s, &v, &name)?;
+                    store.put(i, opened.record.as_ref(), sum, v)?;
+                    out.made += 1;
+                    obs.advance(s.len() as u64);
+                }
+            }
         }
     }
+    out.made += flush(&mut batch, cat, store, choice, sp, obs)?;
     store.finish_prepare()?;
     out.secs = t0.elapsed().as_secs_f64();
     obs.done("prepare", out.secs);
     Ok(out)
+}
+
+/// Prepares the scans of `batch` in parallel and stores their views in input order (the first
+/// failure in that order is the error, as one at a time); returns how many were made.
+fn flush(
+    batch: &mut Batch,
+    cat: &[CatalogScan],
+    store: &mut dyn ViewStore,
+    choice: ProjectionChoice,
+    sp: &SsaoParams,
+    obs: &dyn Observer,
+) -> Result<usize> {
+    let files = std::mem::take(&mut batch.files);
+    batch.points = 0;
+    let jobs: Vec<(usize, usize)> = files
+        .iter()
+        .enumerate()
+        .flat_map(|(f, (.., stale))| stale.iter().map(move |&i| (f, i)))
+        .collect();
+    let views: Vec<Result<(Summary, PreparedView)>> = jobs
+        .par_iter()
+        .map(|&(f, i)| {
+            let (name, _, scans, _) = &files[f];
+            let s = &scans[cat[i].index];
+            let v = prepare_view(s, choice, sp)?;
+            Ok((summarize(s, &v, name)?, v))
+        })
+        .collect();
+    for (&(f, i), made) in jobs.iter().zip(views) {
+        let (sum, v) = made?;
+        store.put(i, files[f].1.as_ref(), sum, v)?;
+        obs.advance(files[f].2[cat[i].index].len() as u64);
+    }
+    Ok(jobs.len())
 }
 
 /// The summary of scan `s`'s view `v` (of input `file`); an error when its depths or radii
