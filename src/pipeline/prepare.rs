@@ -252,4 +252,88 @@ mod tests {
         let views = store.into_views();
         assert!(views[0].is_some() && views[1].is_none());
     }
+
+    /// Scans handed over owned, as input files are: the path that prepares small scans
+    /// together.
+    struct Owned(Vec<Scan>);
+
+    impl crate::pipeline::catalog::Inputs for Owned {
+        fn files(&self) -> usize {
+            self.0.len()
+        }
+        fn name(&self, fi: usize) -> String {
+            self.0[fi].name.clone()
+        }
+        fn bytes(&self, _fi: usize) -> u64 {
+            0
+        }
+        fn for_prepare(&mut self, fi: usize) -> Result<crate::pipeline::catalog::Opened<'_>> {
+            Ok(crate::pipeline::catalog::Opened {
+                scans: Cow::Owned(vec![self.0[fi].clone()]),
+                record: None,
+                read_again: false,
+                placed: None,
+            })
+        }
+        fn for_merge(&self, _fi: usize) -> Result<crate::pipeline::catalog::Opened<'_>> {
+            unreachable!("the prepare stage only")
+        }
+    }
+
+    #[test]
+    fn small_scans_prepared_together_store_the_views_one_at_a_time_would() {
+        let scans: Vec<Scan> = (0..5)
+            .map(|k| {
+                let p = glam::DVec3::new(0.3 * k as f64 - 0.6, 0.2, 1.4);
+                let station = Station::equirect(p, 0.5 * k as f64, 96 + 8 * k, 48 + 4 * k);
+                let mut s = scan_scene(&Scene::room(), &station, 0.0, 1, &format!("s{k}"));
+                s.pose = station.pose();
+                s
+            })
+            .collect();
+        assert!(scans.iter().all(|s| s.len() <= SMALL_SCAN_POINTS));
+        let sp = SsaoParams {
+            estimator: crate::ssao::Estimator::Horizon,
+            radius: 0.2,
+            tmax: 0.4,
+            falloff: Default::default(),
+            samples: 8,
+            directions: 4,
+            steps: 4,
+            seed: 1,
+            blur: true,
+        };
+        let choice = crate::sensor::ProjectionChoice::Auto;
+        let cat = crate::pipeline::catalog::from_scans(&scans).unwrap();
+        let mut store = MemoryStore::new(scans.len());
+        let done = run(
+            &cat.scans,
+            &[true, false, true, true, true],
+            &mut Owned(scans.clone()),
+            &mut store,
+            choice,
+            &sp,
+            &crate::progress::Silent,
+        )
+        .unwrap();
+        assert_eq!((done.made, done.reused), (4, 0));
+        let prm = MergeParams {
+            neighbors: 1,
+            dmin: 0.0,
+            dmax: 10.0,
+            border_px: 64.0,
+        };
+        for (i, s) in scans.iter().enumerate() {
+            if i == 1 {
+                assert!(!store.is_current(1), "a scan not asked for is not prepared");
+                continue;
+            }
+            let v = prepare_view(s, choice, &sp).unwrap();
+            let m = store.maps(i, s.pose, &prm).unwrap();
+            assert_eq!(m.ao, v.ssao.ao, "scan {i}");
+            let p = store.points(i, None).unwrap();
+            assert_eq!((p.radii, p.pixel), (v.radii.clone(), v.pixel.clone()));
+            assert_eq!(store.summary(i).unwrap().points, s.len());
+        }
+    }
 }
