@@ -38,11 +38,19 @@ pub const SMALL_SCAN_POINTS: usize = 1 << 18;
 /// in memory beyond what the serial order holds.
 pub const BATCH_POINTS: usize = 1 << 20;
 
+/// An input file read whose small scans wait to be prepared.
+struct Pending {
+    name: String,
+    record: Option<InputRecord>,
+    scans: Vec<Scan>,
+    /// The catalog entries of its scans to prepare.
+    stale: Vec<usize>,
+}
+
 /// Small scans read but not yet prepared, in input order.
 #[derive(Default)]
 struct Batch {
-    /// Per file: its name, fingerprint and scans, and the catalog entries to prepare.
-    files: Vec<(String, Option<InputRecord>, Vec<Scan>, Vec<usize>)>,
+    files: Vec<Pending>,
     points: usize,
 }
 
@@ -105,7 +113,12 @@ pub fn run(
                     .iter()
                     .map(|&i| scans[cat[i].index].len())
                     .sum::<usize>();
-                batch.files.push((name, opened.record, scans, stale));
+                batch.files.push(Pending {
+                    name,
+                    record: opened.record,
+                    scans,
+                    stale,
+                });
                 if batch.points >= BATCH_POINTS {
                     out.made += flush(&mut batch, cat, store, choice, sp, obs)?;
                 }
@@ -145,21 +158,20 @@ fn flush(
     let jobs: Vec<(usize, usize)> = files
         .iter()
         .enumerate()
-        .flat_map(|(f, (.., stale))| stale.iter().map(move |&i| (f, i)))
+        .flat_map(|(f, p)| p.stale.iter().map(move |&i| (f, i)))
         .collect();
     let views: Vec<Result<(Summary, PreparedView)>> = jobs
         .par_iter()
         .map(|&(f, i)| {
-            let (name, _, scans, _) = &files[f];
-            let s = &scans[cat[i].index];
+            let s = &files[f].scans[cat[i].index];
             let v = prepare_view(s, choice, sp)?;
-            Ok((summarize(s, &v, name)?, v))
+            Ok((summarize(s, &v, &files[f].name)?, v))
         })
         .collect();
     for (&(f, i), made) in jobs.iter().zip(views) {
         let (sum, v) = made?;
-        store.put(i, files[f].1.as_ref(), sum, v)?;
-        obs.advance(files[f].2[cat[i].index].len() as u64);
+        store.put(i, files[f].record.as_ref(), sum, v)?;
+        obs.advance(files[f].scans[cat[i].index].len() as u64);
     }
     Ok(jobs.len())
 }
