@@ -17,11 +17,20 @@
 # SCENE `suite` is a row of rooms joined by doorways, four stations to a room, so each scan
 # overlaps its neighbours' as on a real site; `room` puts every station in one room, where every
 # scan overlaps every other (the merge's worst case).
+#
+#   scripts/bench_scale.sh small [DIR=bench-scale]
+#
+# The many-small-scans suite: 15 perspective views of 208×156 along the `vault` mesh scene,
+# about 29 k points each (0.44 M in all), gridded, no normals in the files.
 set -euo pipefail
 synth_opts="${SYNTH_OPTS:-}"
+suite=scale
 if [ "${1:-}" = survey ]; then
     stations="${2:-6}"; width=2048; height=1024; budget=1G
     dir="${3:-bench-scale}"; scene=courtyard; synth_opts="--no-normals $synth_opts"
+elif [ "${1:-}" = small ]; then
+    suite=small; stations=15; width=208; height=156; budget=2G
+    dir="${2:-bench-scale}"; scene=vault
 else
     stations="${1:-24}"; width="${2:-1440}"; height="${3:-720}"; budget="${4:-2G}"
     dir="${5:-bench-scale}"; scene="${6:-suite}"
@@ -33,6 +42,15 @@ mvao="$PWD/target/release/mvao"
 mkdir -p "$dir"
 tag="$(printf '%s' "$synth_opts" | tr -c 'a-z0-9' '-' | sed 's/--*/-/g; s/-$//')"
 site="$dir/site-$scene-$stations-${width}x$height$tag"
+if [ "$suite" = small ] && [ ! -f "$site/alignment.mlp" ]; then
+    rm -rf "$site"
+    at=()
+    for k in $(seq 0 14); do
+        at+=("--at=$(awk -v k="$k" 'BEGIN { printf "%.2f,%.1f,1.5", -2 + 0.65 * k, k % 2 ? -0.7 : 0.7 }')")
+    done
+    "$mvao" synth --scene vault --stations 15 --projection perspective --width 208 --height 156 \
+        --no-normals "${at[@]}" -o "$site"
+fi
 if [ ! -f "$site/alignment.mlp" ]; then
     rm -rf "$site"
     "$mvao" synth --scene "$scene" --stations "$stations" --width "$width" --height "$height" \
