@@ -13,6 +13,7 @@ use mvao::Estimator;
 use mvao::Occlusion;
 use mvao::ProjectionChoice;
 use mvao::RefParams;
+use mvao::Sampling;
 use mvao::SensorModel;
 use mvao::{PreviewStyle, Tone, Up};
 use std::path::PathBuf;
@@ -111,6 +112,10 @@ pub struct MergeArgs {
     /// Per-view AO estimator.
     #[arg(long, value_enum, default_value_t = Estimator::Horizon)]
     pub estimator: Estimator,
+    /// Horizon march density: every pixel (`uniform`), or once per 2×2 or 4×4 block on flat,
+    /// continuous surfaces small against t_max (`adaptive`).
+    #[arg(long, value_enum, default_value_t = Sampling::Uniform)]
+    pub sampling: Sampling,
     /// Write each scan's single-view SSAO instead of the multi-view merge.
     #[arg(long)]
     pub ssao_only: bool,
@@ -619,6 +624,7 @@ impl MergeArgs {
                 projection: self.projection,
                 estimator: self.estimator,
                 blur: !self.no_blur,
+                sampling: self.sampling,
                 ssao_only: self.ssao_only,
                 occlusion: self.occlusion,
                 rays: self.rays,

@@ -28,6 +28,9 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
                     report.totals.zero_merge_weight,
                     cfg.out_dir.display()
                 );
+                if let Some(l) = &report.totals.ssao_levels {
+                    eprintln!("SSAO pixels by evaluation level: {}", l.to_text());
+                }
             }
             Ok(())
         }
