@@ -328,6 +328,10 @@ pub struct SweepArgs {
     /// Seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Horizon march density of every setting of the sweep (`uniform` or `adaptive`, as for
+    /// `merge`).
+    #[arg(long, value_enum, default_value_t = Sampling::Uniform)]
+    pub sampling: Sampling,
     /// Fewer settings (paper 16/32, horizon 4×4/8×8; N = 1, 3): a quick look.
     #[arg(long)]
     pub quick: bool,

@@ -214,6 +214,7 @@ fn sweep(args: SweepArgs) -> anyhow::Result<()> {
             tmax: args.tmax,
             falloff: args.falloff,
             seed: args.seed,
+            sampling: args.sampling,
             ..ComputeParams::default()
         },
         grid,
