@@ -14,7 +14,9 @@
 //! `B × B` pixels, with its closed `(B+1) × (B+1)` neighbourhood of corners, is coarse when
 //!
 //! - every pixel of the neighbourhood is valid and *continuous*: each of its four neighbours
-//!   lies within [`MAX_DISCONTINUITY`] (sine of the angle) of its tangent plane;
+//!   lies within [`MAX_DISCONTINUITY`] (sine of the angle) of its tangent plane, or less than
+//!   [`MIN_STEP`] × `t_max` off it (a step that low barely shades; range noise is of that
+//!   order on dense scans, and would otherwise break every block);
 //! - its extent (the longer corner diagonal, metres) is at most [`MAX_EXTENT`] × `t_max`;
 //! - the normals turn by little across it: curvature × extent (the angle the normal turns over
 //!   the block) between −[`MAX_TURN_CONCAVE`] and [`MAX_TURN_CONVEX`], concave regions (where
@@ -42,6 +44,9 @@ use serde::{Deserialize, Serialize};
 pub const MAX_EXTENT: f32 = 0.25;
 /// Largest sine of the angle between a pixel's tangent plane and the segment to a neighbour.
 pub const MAX_DISCONTINUITY: f32 = 0.15;
+/// Offsets from the tangent plane below this fraction of `t_max` are not discontinuities: a
+/// step that low shades a region at most about as deep, and range noise is of that order.
+pub const MIN_STEP: f32 = 0.02;
 /// Largest angle (radians) the normal may turn over a concave block.
 pub const MAX_TURN_CONCAVE: f32 = 0.1;
 /// Largest angle (radians) the normal may turn over a convex block.
@@ -161,13 +166,15 @@ pub fn discontinuity(g: &GBuffer) -> Vec<f32> {
         .enumerate()
         .for_each(|(y, row)| {
             for (x, o) in row.iter_mut().enumerate() {
-                *o = discontinuity_at(g, x, y);
+                *o = discontinuity_at(g, x, y, 0.0);
             }
         });
     out
 }
 
-fn discontinuity_at(g: &GBuffer, x: usize, y: usize) -> f32 {
+/// [`discontinuity`] at `(x, y)`, neighbours less than `slack` metres off the tangent plane
+/// counting as on it.
+fn discontinuity_at(g: &GBuffer, x: usize, y: usize, slack: f32) -> f32 {
     let (w, h) = (g.width, g.height);
     let c = y * w + x;
     let Some(n) = normal(g, c) else {
@@ -189,7 +196,11 @@ fn discontinuity_at(g: &GBuffer, x: usize, y: usize) -> f32 {
         if !(l > 0.0) {
             continue;
         }
-        let s = (n.dot(d) / l).abs();
+        let off = n.dot(d).abs();
+        if off <= slack {
+            continue;
+        }
+        let s = off / l;
         if !s.is_finite() {
             return 1.0;
         }
@@ -206,10 +217,13 @@ pub fn plan(g: &GBuffer, tmax: f32) -> Vec<u8> {
     if !(tmax > 0.0 && tmax.is_finite()) || w == 0 {
         return level;
     }
-    let cont: Vec<bool> = discontinuity(g)
-        .iter()
-        .map(|&d| d <= MAX_DISCONTINUITY)
-        .collect();
+    let slack = MIN_STEP * tmax;
+    let mut cont = vec![false; w * h];
+    cont.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, k) in row.iter_mut().enumerate() {
+            *k = discontinuity_at(g, x, y, slack) <= MAX_DISCONTINUITY;
+        }
+    });
     let top = SIZES[2];
     level
         .par_chunks_mut(w * top)
