@@ -155,6 +155,7 @@ fn main() {
             steps,
             seed: 1,
             blur: false,
+            sampling: Default::default(),
         };
         let _ = horizon::ssao(g, proj, &prm);
         let reps = 3;
@@ -200,6 +201,7 @@ fn stage_by_tmax(g: &GBuffer, proj: &Projection, dirs: u32, steps: u32) {
             steps,
             seed: 1,
             blur: false,
+            sampling: Default::default(),
         };
         let best = (0..3)
             .map(|_| {

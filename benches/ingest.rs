@@ -96,6 +96,7 @@ fn main() {
         steps: 8,
         seed: 0,
         blur: true,
+        sampling: Default::default(),
     };
     let view = prepare_view(&s, ProjectionChoice::Auto, &prm).expect("prepare");
     for comp in [MapCompression::None, MapCompression::Zip] {

@@ -52,6 +52,7 @@ fn main() {
         steps: 8,
         seed: 0,
         blur: true,
+        sampling: Default::default(),
     };
     let (t_prep, views) = best_of(1, || {
         scans
@@ -88,6 +89,7 @@ fn main() {
             "paper, 32 samples, no blur",
             SsaoParams {
                 blur: false,
+                sampling: Default::default(),
                 ..base
             },
         ),

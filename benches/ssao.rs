@@ -30,6 +30,7 @@ fn main() {
         steps: 8,
         seed: 0,
         blur: true,
+        sampling: Default::default(),
     };
     let v = prepare_view(&s, ProjectionChoice::Auto, &prm).expect("prepare");
     let (g, proj) = (&v.gbuf, &v.sensor.projection);

@@ -80,6 +80,8 @@ pub struct ComputeParams {
     pub estimator: Estimator,
     /// Blur SSAO maps.
     pub blur: bool,
+    /// Evaluation density of the horizon march.
+    pub sampling: crate::ssao::Sampling,
     /// Skip the merge (MVAO = own SSAO).
     pub ssao_only: bool,
     /// How the merge combines the views.
@@ -109,6 +111,7 @@ impl Default for ComputeParams {
             projection: ProjectionChoice::Auto,
             estimator: Estimator::Horizon,
             blur: true,
+            sampling: crate::ssao::Sampling::Uniform,
             ssao_only: false,
             occlusion: crate::merge::union::Occlusion::Average,
             rays: 32,

@@ -88,7 +88,7 @@ pub use reference::{RefParams, OPEN_MIN_A};
 pub use report::Report;
 pub use scan::Scan;
 pub use sensor::ProjectionChoice;
-pub use ssao::Estimator;
+pub use ssao::{Estimator, Sampling};
 
 /// Internals for the crate's own tests, benches, examples and fuzz targets: not part of the
 /// API and free to change. Each module keeps its inner paths (`testing::scan::knn::…`).

@@ -106,6 +106,10 @@ pub struct ScanReport {
     pub ao_mean: f32,
     /// Largest AO written.
     pub ao_max: f32,
+    /// Valid pixels of the SSAO map evaluated at each level (full rate, one per 2×2, one per
+    /// 4×4) under `--sampling adaptive`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ssao_levels: Option<crate::ssao::multires::Levels>,
 }
 
 /// Totals over the run.
@@ -119,6 +123,9 @@ pub struct Totals {
     pub zero_merge_weight: u64,
     /// Wall time of the whole run (seconds).
     pub wall_s: f64,
+    /// Valid SSAO pixels at each level over all scans (`--sampling adaptive`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ssao_levels: Option<crate::ssao::multires::Levels>,
 }
 
 impl Report {

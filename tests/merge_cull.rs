@@ -41,6 +41,7 @@ fn check(offset: DVec3, model: SensorModel) {
         steps: 4,
         seed: 0,
         blur: true,
+        sampling: Default::default(),
     };
     let views: Vec<_> = scans
         .iter()

@@ -31,6 +31,7 @@ fn params(seed: u64) -> SsaoParams {
         steps: 8,
         seed,
         blur: true,
+        sampling: Default::default(),
     }
 }
 

@@ -13,6 +13,7 @@ use mvao::Estimator;
 use mvao::Occlusion;
 use mvao::ProjectionChoice;
 use mvao::RefParams;
+use mvao::Sampling;
 use mvao::SensorModel;
 use mvao::{PreviewStyle, Tone, Up};
 use std::path::PathBuf;
@@ -111,6 +112,10 @@ pub struct MergeArgs {
     /// Per-view AO estimator.
     #[arg(long, value_enum, default_value_t = Estimator::Horizon)]
     pub estimator: Estimator,
+    /// Horizon march density: every pixel (`uniform`), or once per 2×2 or 4×4 block on flat,
+    /// continuous surfaces small against t_max (`adaptive`).
+    #[arg(long, value_enum, default_value_t = Sampling::Uniform)]
+    pub sampling: Sampling,
     /// Write each scan's single-view SSAO instead of the multi-view merge.
     #[arg(long)]
     pub ssao_only: bool,
@@ -323,6 +328,10 @@ pub struct SweepArgs {
     /// Seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Horizon march density of every setting of the sweep (`uniform` or `adaptive`, as for
+    /// `merge`).
+    #[arg(long, value_enum, default_value_t = Sampling::Uniform)]
+    pub sampling: Sampling,
     /// Fewer settings (paper 16/32, horizon 4×4/8×8; N = 1, 3): a quick look.
     #[arg(long)]
     pub quick: bool,
@@ -619,6 +628,7 @@ impl MergeArgs {
                 projection: self.projection,
                 estimator: self.estimator,
                 blur: !self.no_blur,
+                sampling: self.sampling,
                 ssao_only: self.ssao_only,
                 occlusion: self.occlusion,
                 rays: self.rays,

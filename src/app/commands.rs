@@ -28,6 +28,9 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
                     report.totals.zero_merge_weight,
                     cfg.out_dir.display()
                 );
+                if let Some(l) = &report.totals.ssao_levels {
+                    eprintln!("SSAO pixels by evaluation level: {}", l.to_text());
+                }
             }
             Ok(())
         }
@@ -211,6 +214,7 @@ fn sweep(args: SweepArgs) -> anyhow::Result<()> {
             tmax: args.tmax,
             falloff: args.falloff,
             seed: args.seed,
+            sampling: args.sampling,
             ..ComputeParams::default()
         },
         grid,

@@ -361,6 +361,17 @@ pub fn run(cfg: &Config, obs: &dyn Observer) -> Result<Report> {
         no_ssao_sample: report.scans.iter().map(|s| s.no_ssao_sample).sum(),
         zero_merge_weight: report.scans.iter().map(|s| s.zero_merge_weight).sum(),
         wall_s: t_all.elapsed().as_secs_f64(),
+        ssao_levels: report
+            .scans
+            .iter()
+            .fold(None, |acc, s| match (acc, &s.ssao_levels) {
+                (acc, None) => acc,
+                (None, Some(l)) => Some(*l),
+                (Some(mut a), Some(l)) => {
+                    a.add(l);
+                    Some(a)
+                }
+            }),
     };
     if cfg.prepare_only {
         return Ok(report);

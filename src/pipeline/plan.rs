@@ -107,6 +107,7 @@ pub fn ssao_params(
         steps: prm.steps,
         seed: prm.seed,
         blur: prm.blur,
+        sampling: prm.sampling,
     };
     Ok((sp, note))
 }

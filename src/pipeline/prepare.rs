@@ -208,6 +208,7 @@ pub fn summarize(s: &Scan, v: &PreparedView, file: &str) -> Result<Summary> {
         reason: v.sensor.reason.clone(),
         normals: v.normals_note.clone(),
         times: v.times.iter().map(|(k, t)| (k.to_string(), *t)).collect(),
+        ssao_levels: v.ssao.levels,
     })
 }
 
@@ -236,6 +237,7 @@ mod tests {
             steps: 4,
             seed: 1,
             blur: true,
+            sampling: Default::default(),
         };
         let v = prepare_view(&scan, crate::sensor::ProjectionChoice::Auto, &sp).unwrap();
         let sum = summarize(&scan, &v, "s").unwrap();

@@ -276,6 +276,7 @@ impl Sink for Writer<'_> {
             ao_min: mn,
             ao_mean: mean,
             ao_max: mx,
+            ssao_levels: sum.ssao_levels,
         });
         if self.keep_values {
             self.values

@@ -327,6 +327,7 @@ pub fn load_view(dir: &Path, key: &str) -> Result<PreparedView> {
         ssao: AoMap {
             ao: maps.ao,
             no_sample: maps.no_sample.unwrap_or_default(),
+            levels: None,
         },
         border: maps.border,
         radii: pts.radii,

@@ -4,6 +4,7 @@
 pub mod blur;
 pub mod farfield;
 pub mod horizon;
+pub mod multires;
 pub mod paper;
 
 pub(crate) use crate::rng;
@@ -23,6 +24,25 @@ pub enum Estimator {
     /// Horizon-based obscurance: converges to the range map's own ray-traced `A(p)` as
     /// directions × steps grow.
     Horizon,
+}
+
+/// How densely the horizon march evaluates a map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sampling {
+    /// Every pixel.
+    #[default]
+    Uniform,
+    /// Once per 2×2 or 4×4 block on flat, continuous surfaces small against `t_max`, every
+    /// pixel at creases, edges and concave regions ([`multires`]).
+    Adaptive,
+}
+
+impl Sampling {
+    /// The default (left out of the products' parameters and reports).
+    pub fn is_uniform(&self) -> bool {
+        *self == Sampling::Uniform
+    }
 }
 
 /// Parameters of one SSAO evaluation.
@@ -49,6 +69,10 @@ pub struct SsaoParams {
     pub seed: u64,
     /// Apply the 5×5 Gaussian blur.
     pub blur: bool,
+    /// Evaluation density of the horizon march (left out of the JSON when uniform, so
+    /// products and reports of the default keep their parameters).
+    #[serde(skip_serializing_if = "Sampling::is_uniform")]
+    pub sampling: Sampling,
 }
 
 /// An AO map of one view.
@@ -58,6 +82,8 @@ pub struct AoMap {
     pub ao: Vec<f32>,
     /// Per-pixel flag: a valid pixel none of whose samples was valid (AO left at 1).
     pub no_sample: Vec<bool>,
+    /// Valid pixels evaluated at each level of `--sampling adaptive` (`None` when uniform).
+    pub levels: Option<multires::Levels>,
 }
 
 /// The default falloff `ρ(d) = smoothstep(0, t_max, d)`: `x = clamp(d/t_max, 0, 1)`,
@@ -98,16 +124,27 @@ pub(crate) fn unmarchable(g: &GBuffer, proj: &Projection) -> Option<AoMap> {
             *f = g.is_valid(i);
         }
     }
-    Some(AoMap { ao, no_sample })
+    Some(AoMap {
+        ao,
+        no_sample,
+        levels: None,
+    })
 }
 
 /// Computes the AO map of a view with the chosen estimator, then blurs it.
 pub fn compute(g: &GBuffer, proj: &Projection, p: &SsaoParams) -> AoMap {
+    let adaptive = p.sampling == Sampling::Adaptive;
     let mut map = match p.estimator {
         Estimator::Paper => paper::ssao(g, proj, p),
         Estimator::Horizon if farfield::applies(p) => farfield::ssao(g, proj, p),
+        Estimator::Horizon if adaptive => multires::ssao(g, proj, p),
         Estimator::Horizon => horizon::ssao(g, proj, p),
     };
+    if adaptive && map.levels.is_none() {
+        // The paper's estimator and the far-field sweeps evaluate every pixel.
+        let valid = (0..g.width * g.height).filter(|&c| g.is_valid(c)).count();
+        map.levels = Some(multires::Levels::full(valid as u64));
+    }
     if p.blur {
         map.ao = blur::gaussian5(&map.ao, g, proj.wrap_x);
     }

@@ -25,6 +25,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
         return AoMap {
             ao,
             no_sample: flag,
+            levels: None,
         };
     }
     let tau = std::f32::consts::TAU;
@@ -100,6 +101,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     AoMap {
         ao,
         no_sample: flag,
+        levels: None,
     }
 }
 
@@ -163,6 +165,7 @@ mod tests {
             steps: 8,
             seed: 1,
             blur: false,
+            sampling: Default::default(),
         }
     }
 

@@ -51,6 +51,9 @@ pub struct Summary {
     pub normals: String,
     /// Wall time of each per-view stage (seconds).
     pub times: Vec<(String, f64)>,
+    /// Valid pixels of the SSAO map evaluated at each level of `--sampling adaptive`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ssao_levels: Option<crate::ssao::multires::Levels>,
 }
 
 /// What a store counted.

@@ -57,6 +57,7 @@ impl Default for StreamParams {
                 steps: 8,
                 seed: 0,
                 blur: true,
+                sampling: Default::default(),
             },
             ssao_scale: 4,
             history: false,

@@ -127,6 +127,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     AoMap {
         ao,
         no_sample: flag,
+        levels: None,
     }
 }
 

@@ -108,6 +108,17 @@ mod lanes;
 /// falloff `prm.tmax`, per-pixel patterns from `prm.seed`. A projection whose size differs from
 /// the G-buffer's cannot be marched: every valid pixel is then flagged.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
+    ssao_masked(g, proj, prm, None)
+}
+
+/// [`ssao`] evaluated only at the pixels `only` marks (all valid pixels when `None`); the
+/// others keep 1, unflagged.
+pub(crate) fn ssao_masked(
+    g: &GBuffer,
+    proj: &Projection,
+    prm: &SsaoParams,
+    only: Option<&[bool]>,
+) -> AoMap {
     if let Some(map) = super::unmarchable(g, proj) {
         return map;
     }
@@ -133,7 +144,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
                     let y = band * BAND + r;
                     for x in x0..(x0 + TILE).min(w) {
                         let c = y * w + x;
-                        if !g.is_valid(c) {
+                        if !g.is_valid(c) || only.is_some_and(|m| !m[c]) {
                             continue;
                         }
                         match ctx.pixel(x, y, c, &mut grp) {
@@ -147,6 +158,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     AoMap {
         ao,
         no_sample: flag,
+        levels: None,
     }
 }
 

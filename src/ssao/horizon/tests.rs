@@ -20,6 +20,7 @@ pub(crate) fn params(directions: u32, steps: u32, tmax: f32) -> SsaoParams {
         steps,
         seed: 1,
         blur: false,
+        sampling: Default::default(),
     }
 }
 

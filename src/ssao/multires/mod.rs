@@ -1,0 +1,388 @@
+//! Multi-resolution evaluation of the horizon march (`--sampling adaptive`), after the
+//! curvature and depth-discontinuity metrics of multiresolution screen-space AO: pixels on flat,
+//! continuous surfaces are evaluated once per 2×2 or 4×4 block and filled in by bilinear
+//! interpolation inside the block; creases, edges, concave regions and the borders of the data
+//! keep one evaluation per pixel.
+//!
+//! # Why a block may be coarse
+//!
+//! Obscurance on a smooth open surface changes on the scale of `t_max` (the occluders that
+//! matter lie within `t_max`), so a block whose 3-D extent is a small fraction `α` of `t_max`
+//! is interpolated with an error of order `α²/8` of the map's curvature over `t_max`. What
+//! breaks interpolation is a kink or a jump *inside* the block: a crease (the normals turn), a
+//! depth discontinuity (a neighbour leaves the tangent plane) or missing data. So a block of
+//! `B × B` pixels, with its closed `(B+1) × (B+1)` neighbourhood of corners, is coarse when
+//!
+//! - every pixel of the neighbourhood is valid and *continuous*: each of its four neighbours
+//!   lies within [`MAX_DISCONTINUITY`] (sine of the angle) of its tangent plane, or less than
+//!   [`MIN_STEP`] × `t_max` off it (a step that low barely shades; range noise is of that
+//!   order on dense scans, and would otherwise break every block);
+//! - its extent (the longer corner diagonal, metres) is at most [`MAX_EXTENT`] × `t_max`;
+//! - the normals turn by little across it: curvature × extent (the angle the normal turns over
+//!   the block) between −[`MAX_TURN_CONCAVE`] and [`MAX_TURN_CONVEX`], concave regions (where
+//!   occlusion gathers) being held to the tighter bound.
+//!
+//! Both bounds scale with the pixel footprint against `t_max`, not with a dataset's units. The
+//! curvature is measured between the block's corners (a baseline of `B` pixels) rather than
+//! between adjacent pixels, so that the noise of estimated normals is not divided by a pixel's
+//! spacing.
+//!
+//! The corners are evaluated by the full march with their own per-pixel random numbers, so the
+//! map is deterministic for a seed; a block one of whose corners found no sample is evaluated
+//! at full rate. An open plane reads exactly 1: every corner does, and the interpolation is
+//! written as two linear blends, exact on equal values. Without a finite `t_max` there is no
+//! scale to compare a block with, and every pixel runs at full rate.
+
+use super::{horizon, AoMap, SsaoParams};
+use crate::gbuffer::GBuffer;
+use crate::projection::Projection;
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Largest block extent, as a fraction of `t_max`.
+pub const MAX_EXTENT: f32 = 0.25;
+/// Largest sine of the angle between a pixel's tangent plane and the segment to a neighbour.
+pub const MAX_DISCONTINUITY: f32 = 0.15;
+/// Offsets from the tangent plane below this fraction of `t_max` are not discontinuities: a
+/// step that low shades a region at most about as deep, and range noise is of that order.
+pub const MIN_STEP: f32 = 0.02;
+/// Largest angle (radians) the normal may turn over a concave block.
+pub const MAX_TURN_CONCAVE: f32 = 0.1;
+/// Largest angle (radians) the normal may turn over a convex block.
+pub const MAX_TURN_CONVEX: f32 = 0.3;
+
+/// Block sizes of the levels: level `l` evaluates one pixel per `SIZES[l]²`.
+pub const SIZES: [usize; 3] = [1, 2, 4];
+
+/// Valid pixels evaluated at each level: full rate, one per 2×2, one per 4×4.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Levels {
+    /// Pixels of each level (`SIZES`).
+    pub pixels: [u64; 3],
+}
+
+impl Levels {
+    /// Every one of `n` valid pixels at full rate.
+    pub fn full(n: u64) -> Levels {
+        Levels { pixels: [n, 0, 0] }
+    }
+
+    /// Adds `o`'s counts.
+    pub fn add(&mut self, o: &Levels) {
+        for (a, b) in self.pixels.iter_mut().zip(o.pixels) {
+            *a += b;
+        }
+    }
+
+    /// Shares of the pixels at each level (zeros when there are none).
+    pub fn shares(&self) -> [f64; 3] {
+        let n: u64 = self.pixels.iter().sum();
+        let n = n.max(1) as f64;
+        self.pixels.map(|k| k as f64 / n)
+    }
+
+    /// "full 41.0 %, 2×2 12.5 %, 4×4 46.5 %".
+    pub fn to_text(&self) -> String {
+        let s = self.shares();
+        format!(
+            "full {:.1} %, 2×2 {:.1} %, 4×4 {:.1} %",
+            100.0 * s[0],
+            100.0 * s[1],
+            100.0 * s[2]
+        )
+    }
+}
+
+/// Unit normal of pixel `c`, `None` when empty, zero or not finite.
+#[inline]
+fn normal(g: &GBuffer, c: usize) -> Option<Vec3> {
+    if !g.is_valid(c) {
+        return None;
+    }
+    let n = g.normal[c];
+    let l = n.length();
+    (l > 1e-6 && l.is_finite() && g.position[c].is_finite()).then(|| n / l)
+}
+
+/// Normal curvature along the segment from pixel `a` to pixel `b`:
+/// `(n_b − n_a)·(p_b − p_a) / ‖p_b − p_a‖²` (`1/R` on a sphere of radius `R` seen from
+/// outside, `−1/R` from inside, 0 on a plane); `None` when either is unusable.
+#[inline]
+fn curvature_between(g: &GBuffer, a: usize, b: usize) -> Option<f32> {
+    let (na, nb) = (normal(g, a)?, normal(g, b)?);
+    let d = g.position[b] - g.position[a];
+    let l2 = d.length_squared();
+    let k = (nb - na).dot(d) / l2;
+    (l2 > 0.0 && k.is_finite()).then_some(k)
+}
+
+/// Per-pixel curvature (1/m): along x and along y by central differences of the neighbours'
+/// normals and positions (one-sided where a neighbour is missing), the one of larger
+/// magnitude, signed (positive convex, negative concave as seen from the sensor). NaN on
+/// empty pixels and where no neighbour is usable.
+pub fn curvature(g: &GBuffer) -> Vec<f32> {
+    let (w, h) = (g.width, g.height);
+    let mut out = vec![f32::NAN; w * h];
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, o) in row.iter_mut().enumerate() {
+                let c = y * w + x;
+                if normal(g, c).is_none() {
+                    continue;
+                }
+                let axis = |lo: Option<usize>, hi: Option<usize>| -> Option<f32> {
+                    let lo = lo.filter(|&i| normal(g, i).is_some());
+                    let hi = hi.filter(|&i| normal(g, i).is_some());
+                    match (lo, hi) {
+                        (Some(a), Some(b)) => curvature_between(g, a, b),
+                        (Some(a), None) => curvature_between(g, a, c),
+                        (None, Some(b)) => curvature_between(g, c, b),
+                        (None, None) => None,
+                    }
+                };
+                let kx = axis((x > 0).then(|| c - 1), (x + 1 < w).then_some(c + 1));
+                let ky = axis((y > 0).then(|| c - w), (y + 1 < h).then_some(c + w));
+                *o = match (kx, ky) {
+                    (Some(a), Some(b)) if b.abs() > a.abs() => b,
+                    (Some(a), _) => a,
+                    (None, Some(b)) => b,
+                    (None, None) => f32::NAN,
+                };
+            }
+        });
+    out
+}
+
+/// Per-pixel depth discontinuity: the largest sine of the angle between the pixel's tangent
+/// plane and the segment to one of its four neighbours (0 on a plane at any viewing angle, 1
+/// across a jump seen head-on); 1 where a neighbour is empty or outside the map, NaN on empty
+/// pixels.
+pub fn discontinuity(g: &GBuffer) -> Vec<f32> {
+    let (w, h) = (g.width, g.height);
+    let mut out = vec![f32::NAN; w * h];
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, o) in row.iter_mut().enumerate() {
+                *o = discontinuity_at(g, x, y, 0.0);
+            }
+        });
+    out
+}
+
+/// [`discontinuity`] at `(x, y)`, neighbours less than `slack` metres off the tangent plane
+/// counting as on it.
+fn discontinuity_at(g: &GBuffer, x: usize, y: usize, slack: f32) -> f32 {
+    let (w, h) = (g.width, g.height);
+    let c = y * w + x;
+    let Some(n) = normal(g, c) else {
+        return f32::NAN;
+    };
+    let p = g.position[c];
+    let mut worst = 0.0f32;
+    for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
+        let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+        if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+            return 1.0;
+        }
+        let b = ny as usize * w + nx as usize;
+        if normal(g, b).is_none() {
+            return 1.0;
+        }
+        let d = g.position[b] - p;
+        let l = d.length();
+        if !(l > 0.0) {
+            continue;
+        }
+        let off = n.dot(d).abs();
+        if off <= slack {
+            continue;
+        }
+        let s = off / l;
+        if !s.is_finite() {
+            return 1.0;
+        }
+        worst = worst.max(s);
+    }
+    worst
+}
+
+/// The level of every pixel (index into [`SIZES`]; 0 on empty pixels), for falloff
+/// distance `tmax`. A coarse pixel belongs to the block of its level that holds it.
+pub fn plan(g: &GBuffer, tmax: f32) -> Vec<u8> {
+    let (w, h) = (g.width, g.height);
+    let mut level = vec![0u8; w * h];
+    if !(tmax > 0.0 && tmax.is_finite()) || w == 0 {
+        return level;
+    }
+    let slack = MIN_STEP * tmax;
+    let mut cont = vec![false; w * h];
+    cont.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, k) in row.iter_mut().enumerate() {
+            *k = discontinuity_at(g, x, y, slack) <= MAX_DISCONTINUITY;
+        }
+    });
+    let top = SIZES[2];
+    level
+        .par_chunks_mut(w * top)
+        .enumerate()
+        .for_each(|(by, band)| {
+            let y0 = by * top;
+            for x0 in (0..w).step_by(top) {
+                if coarse(g, &cont, x0, y0, top, tmax) {
+                    fill(band, w, x0, 0, top, 2);
+                    continue;
+                }
+                let half = SIZES[1];
+                for (sx, sy) in [(0, 0), (half, 0), (0, half), (half, half)] {
+                    if coarse(g, &cont, x0 + sx, y0 + sy, half, tmax) {
+                        fill(band, w, x0 + sx, sy, half, 1);
+                    }
+                }
+            }
+        });
+    level
+}
+
+/// Sets the `b × b` block at column `x0`, row `r0` of `band` to `l`.
+fn fill(band: &mut [u8], w: usize, x0: usize, r0: usize, b: usize, l: u8) {
+    for r in r0..r0 + b {
+        band[r * w + x0..r * w + x0 + b].fill(l);
+    }
+}
+
+/// Whether the `b × b` block at `(x0, y0)` may be evaluated at its corners only (see the
+/// module notes).
+fn coarse(g: &GBuffer, cont: &[bool], x0: usize, y0: usize, b: usize, tmax: f32) -> bool {
+    let w = g.width;
+    if x0 + b >= w || y0 + b >= g.height {
+        return false;
+    }
+    for y in y0..=y0 + b {
+        if !cont[y * w + x0..=y * w + x0 + b].iter().all(|&k| k) {
+            return false;
+        }
+    }
+    let c = [
+        y0 * w + x0,
+        y0 * w + x0 + b,
+        (y0 + b) * w + x0,
+        (y0 + b) * w + x0 + b,
+    ];
+    let p = |i: usize| g.position[c[i]];
+    let extent = (p(3) - p(0)).length().max((p(2) - p(1)).length());
+    if !(extent <= MAX_EXTENT * tmax) {
+        return false;
+    }
+    for (i, j) in [(0, 1), (2, 3), (0, 2), (1, 3), (0, 3), (1, 2)] {
+        let Some(k) = curvature_between(g, c[i], c[j]) else {
+            return false;
+        };
+        let turn = k * extent;
+        if !(-MAX_TURN_CONCAVE..=MAX_TURN_CONVEX).contains(&turn) {
+            return false;
+        }
+    }
+    true
+}
+
+/// The unblurred horizon march evaluated at the levels [`plan`] chooses, and the pixels
+/// evaluated at each level.
+pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
+    let (w, h) = (g.width, g.height);
+    let valid = (0..w * h).filter(|&c| g.is_valid(c)).count() as u64;
+    if super::unmarchable(g, proj).is_some() {
+        let mut map = horizon::ssao(g, proj, prm);
+        map.levels = Some(Levels::full(valid));
+        return map;
+    }
+    let mut level = plan(g, prm.tmax);
+    // Pixels the march evaluates: every full-rate pixel and every coarse block's corners.
+    let mut need: Vec<bool> = level
+        .iter()
+        .enumerate()
+        .map(|(c, &l)| l == 0 && g.is_valid(c))
+        .collect();
+    let blocks = blocks(&level, w, h);
+    for &(x0, y0, b) in &blocks {
+        for (dx, dy) in [(0, 0), (b, 0), (0, b), (b, b)] {
+            need[(y0 + dy) * w + x0 + dx] = true;
+        }
+    }
+    let mut map = horizon::ssao_masked(g, proj, prm, Some(&need));
+    // A block whose corners did not all find a sample runs at full rate.
+    let mut redo = vec![false; w * h];
+    let mut any = false;
+    for &(x0, y0, b) in &blocks {
+        let corners = [(0, 0), (b, 0), (0, b), (b, b)];
+        if corners
+            .iter()
+            .any(|&(dx, dy)| map.no_sample[(y0 + dy) * w + x0 + dx])
+        {
+            any = true;
+            for y in y0..y0 + b {
+                for x in x0..x0 + b {
+                    redo[y * w + x] = !need[y * w + x];
+                    level[y * w + x] = 0;
+                }
+            }
+        }
+    }
+    if any {
+        let again = horizon::ssao_masked(g, proj, prm, Some(&redo));
+        for c in (0..w * h).filter(|&c| redo[c]) {
+            map.ao[c] = again.ao[c];
+            map.no_sample[c] = again.no_sample[c];
+        }
+    }
+    interpolate(&mut map.ao, &level, w);
+    let mut counts = Levels::default();
+    for (c, &l) in level.iter().enumerate() {
+        if g.is_valid(c) {
+            counts.pixels[l as usize] += 1;
+        }
+    }
+    map.levels = Some(counts);
+    map
+}
+
+/// The coarse blocks of `level`: `(x0, y0, size)`.
+fn blocks(level: &[u8], w: usize, h: usize) -> Vec<(usize, usize, usize)> {
+    let mut out = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let l = level[y * w + x] as usize;
+            let b = SIZES[l];
+            if l > 0 && x % b == 0 && y % b == 0 {
+                out.push((x, y, b));
+            }
+        }
+    }
+    out
+}
+
+/// Fills every coarse pixel from its block's four corners, bilinearly at the pixel centres.
+fn interpolate(ao: &mut [f32], level: &[u8], w: usize) {
+    let nodes = ao.to_vec();
+    ao.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, a) in row.iter_mut().enumerate() {
+                let b = SIZES[level[y * w + x] as usize];
+                if b == 1 || (x % b == 0 && y % b == 0) {
+                    continue;
+                }
+                let (x0, y0) = (x - x % b, y - y % b);
+                let at = |dx: usize, dy: usize| nodes[(y0 + dy) * w + x0 + dx];
+                let (u, v) = ((x - x0) as f32 / b as f32, (y - y0) as f32 / b as f32);
+                let top = at(0, 0) + (at(b, 0) - at(0, 0)) * u;
+                let bottom = at(0, b) + (at(b, b) - at(0, b)) * u;
+                *a = top + (bottom - top) * v;
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests;
