@@ -316,6 +316,7 @@ mod tests {
             steps: 4,
             seed: 1,
             blur: true,
+            sampling: Default::default(),
         };
         let choice = crate::sensor::ProjectionChoice::Auto;
         let cat = crate::pipeline::catalog::from_scans(&scans).unwrap();
