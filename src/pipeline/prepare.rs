@@ -222,12 +222,9 @@ mod tests {
     use crate::synth::{scan_scene, Scene, Station};
     use std::sync::Arc;
 
-    #[test]
-    fn a_stored_view_comes_back_as_it_was_put() {
-        let station = Station::equirect(glam::DVec3::new(0.0, 0.0, 1.5), 0.0, 120, 60);
-        let mut scan = scan_scene(&Scene::room(), &station, 0.0, 1, "s");
-        scan.pose = station.pose();
-        let sp = SsaoParams {
+    /// A cheap horizon march for the tests' small views.
+    fn small_ssao() -> SsaoParams {
+        SsaoParams {
             estimator: crate::ssao::Estimator::Horizon,
             radius: 0.2,
             tmax: 0.4,
@@ -238,7 +235,15 @@ mod tests {
             seed: 1,
             blur: true,
             sampling: Default::default(),
-        };
+        }
+    }
+
+    #[test]
+    fn a_stored_view_comes_back_as_it_was_put() {
+        let station = Station::equirect(glam::DVec3::new(0.0, 0.0, 1.5), 0.0, 120, 60);
+        let mut scan = scan_scene(&Scene::room(), &station, 0.0, 1, "s");
+        scan.pose = station.pose();
+        let sp = small_ssao();
         let v = prepare_view(&scan, crate::sensor::ProjectionChoice::Auto, &sp).unwrap();
         let sum = summarize(&scan, &v, "s").unwrap();
         let mut store = MemoryStore::new(2);
@@ -306,18 +311,7 @@ mod tests {
             })
             .collect();
         assert!(scans.iter().all(|s| s.len() <= SMALL_SCAN_POINTS));
-        let sp = SsaoParams {
-            estimator: crate::ssao::Estimator::Horizon,
-            radius: 0.2,
-            tmax: 0.4,
-            falloff: Default::default(),
-            samples: 8,
-            directions: 4,
-            steps: 4,
-            seed: 1,
-            blur: true,
-            sampling: Default::default(),
-        };
+        let sp = small_ssao();
         let choice = crate::sensor::ProjectionChoice::Auto;
         let cat = crate::pipeline::catalog::from_scans(&scans).unwrap();
         let mut store = MemoryStore::new(scans.len());

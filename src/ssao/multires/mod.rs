@@ -123,33 +123,41 @@ fn curvature_between(g: &GBuffer, a: usize, b: usize) -> Option<f32> {
 /// empty pixels and where no neighbour is usable.
 pub fn curvature(g: &GBuffer) -> Vec<f32> {
     let (w, h) = (g.width, g.height);
-    let mut out = vec![f32::NAN; w * h];
+    per_pixel(g, |x, y| {
+        let c = y * w + x;
+        if normal(g, c).is_none() {
+            return f32::NAN;
+        }
+        let axis = |lo: Option<usize>, hi: Option<usize>| -> Option<f32> {
+            let lo = lo.filter(|&i| normal(g, i).is_some());
+            let hi = hi.filter(|&i| normal(g, i).is_some());
+            match (lo, hi) {
+                (Some(a), Some(b)) => curvature_between(g, a, b),
+                (Some(a), None) => curvature_between(g, a, c),
+                (None, Some(b)) => curvature_between(g, c, b),
+                (None, None) => None,
+            }
+        };
+        let kx = axis((x > 0).then(|| c - 1), (x + 1 < w).then_some(c + 1));
+        let ky = axis((y > 0).then(|| c - w), (y + 1 < h).then_some(c + w));
+        match (kx, ky) {
+            (Some(a), Some(b)) if b.abs() > a.abs() => b,
+            (Some(a), _) => a,
+            (None, Some(b)) => b,
+            (None, None) => f32::NAN,
+        }
+    })
+}
+
+/// `f(x, y)` for every pixel of `g`'s map, rows in parallel.
+fn per_pixel(g: &GBuffer, f: impl Fn(usize, usize) -> f32 + Sync) -> Vec<f32> {
+    let w = g.width;
+    let mut out = vec![f32::NAN; w * g.height];
     out.par_chunks_mut(w.max(1))
         .enumerate()
         .for_each(|(y, row)| {
             for (x, o) in row.iter_mut().enumerate() {
-                let c = y * w + x;
-                if normal(g, c).is_none() {
-                    continue;
-                }
-                let axis = |lo: Option<usize>, hi: Option<usize>| -> Option<f32> {
-                    let lo = lo.filter(|&i| normal(g, i).is_some());
-                    let hi = hi.filter(|&i| normal(g, i).is_some());
-                    match (lo, hi) {
-                        (Some(a), Some(b)) => curvature_between(g, a, b),
-                        (Some(a), None) => curvature_between(g, a, c),
-                        (None, Some(b)) => curvature_between(g, c, b),
-                        (None, None) => None,
-                    }
-                };
-                let kx = axis((x > 0).then(|| c - 1), (x + 1 < w).then_some(c + 1));
-                let ky = axis((y > 0).then(|| c - w), (y + 1 < h).then_some(c + w));
-                *o = match (kx, ky) {
-                    (Some(a), Some(b)) if b.abs() > a.abs() => b,
-                    (Some(a), _) => a,
-                    (None, Some(b)) => b,
-                    (None, None) => f32::NAN,
-                };
+                *o = f(x, y);
             }
         });
     out
@@ -160,16 +168,7 @@ pub fn curvature(g: &GBuffer) -> Vec<f32> {
 /// across a jump seen head-on); 1 where a neighbour is empty or outside the map, NaN on empty
 /// pixels.
 pub fn discontinuity(g: &GBuffer) -> Vec<f32> {
-    let (w, h) = (g.width, g.height);
-    let mut out = vec![f32::NAN; w * h];
-    out.par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, o) in row.iter_mut().enumerate() {
-                *o = discontinuity_at(g, x, y, 0.0);
-            }
-        });
-    out
+    per_pixel(g, |x, y| discontinuity_at(g, x, y, 0.0))
 }
 
 /// [`discontinuity`] at `(x, y)`, neighbours less than `slack` metres off the tangent plane
