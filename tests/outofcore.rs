@@ -253,9 +253,15 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
         &["--max-memory", &format!("{}M", part_budget >> 20)],
     );
     assert_eq!(outputs(&part), outputs(&free));
-    assert_eq!(r["views_kept"], 4);
-    // The four other scans' own maps at least.
-    assert!(r["map_loads"].as_u64().unwrap() >= 4, "{}", r["map_loads"]);
+    // At most the four the estimate allows, fewer when the resident memory measured as each
+    // view is kept leaves less room; the other scans' own maps are read back.
+    let kept = r["views_kept"].as_u64().unwrap();
+    assert!((1..=4).contains(&kept), "{kept} views kept");
+    assert!(
+        r["map_loads"].as_u64().unwrap() >= 8 - kept,
+        "{}",
+        r["map_loads"]
+    );
     let peak = r["peak_rss_bytes"].as_u64().unwrap();
     assert!(
         peak as f64 <= part_budget as f64 * 1.1,

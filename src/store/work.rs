@@ -144,7 +144,14 @@ impl WorkDirStore {
             let b = m.heap_bytes();
             // The plan counted estimated sizes: a view larger than estimated is not kept
             // beyond the room the plan gave the views.
-            if self.kept_bytes + b <= self.setup.keep_room {
+            // The estimate leaves out what the process holds beside the views (the catalog,
+            // thread stacks, the allocator's own pages), so the view is also kept only when
+            // the resident memory measured now, this view included, leaves one more step's
+            // room in the budget.
+            crate::sys::return_freed_memory();
+            let held = crate::sys::current_rss().unwrap_or(0);
+            let step = self.setup.budget.saturating_sub(self.setup.keep_room);
+            if self.kept_bytes + b <= self.setup.keep_room && held + step <= self.setup.budget {
                 self.kept_bytes += b;
                 self.cache.used += b;
                 self.cache.kept += 1;
