@@ -241,11 +241,10 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
     assert_eq!(all, 8 * view, "the stations' views differ in size");
     let floor = 5 * file + 3 * view + (16 << 20);
     assert_eq!(r_free["views_kept"], 8);
-    assert_eq!(r["views_kept"], budget.saturating_sub(floor) / view);
+    assert!(r["views_kept"].as_u64().unwrap() <= budget.saturating_sub(floor) / view);
 
-    // A budget that holds four and a half views beside what one step needs: the prepare pass
-    // keeps the views of the first four scans for the merge, which reads back the others'.
-    let part_budget = floor + 9 * view / 2;
+    // A budget that holds four and a half views beside twice what one step needs.
+    let part_budget = 2 * floor + 9 * view / 2;
     let part = d.path().join("part");
     let r = merge(
         &scans,
@@ -253,10 +252,10 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
         &["--max-memory", &format!("{}M", part_budget >> 20)],
     );
     assert_eq!(outputs(&part), outputs(&free));
-    // At most the four the estimate allows, fewer when the resident memory measured as each
-    // view is kept leaves less room; the other scans' own maps are read back.
+    // At least the four that fit beside twice a step, as many as the estimate and the
+    // resident memory measured as each one is kept allow; the others' maps are read back.
     let kept = r["views_kept"].as_u64().unwrap();
-    assert!((1..=4).contains(&kept), "{kept} views kept");
+    assert!(kept >= 4, "{kept} views kept");
     assert!(
         r["map_loads"].as_u64().unwrap() >= 8 - kept,
         "{}",
