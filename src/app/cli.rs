@@ -130,6 +130,11 @@ pub struct MergeArgs {
     /// [default: radius / 10].
     #[arg(long)]
     pub thickness: Option<f32>,
+    /// Also write each point's bent normal, the cosine-weighted mean unoccluded direction (by
+    /// `--rays` rays through every overlapping view), as `bnx bny bnz`: in the file's frame in
+    /// a PLY written back, in world coordinates in a result written across formats.
+    #[arg(long)]
+    pub bent_normals: bool,
     /// What happens to input colours.
     #[arg(long, value_enum, default_value_t = ColorMode::Modulate)]
     pub color: ColorMode,
@@ -633,7 +638,7 @@ impl MergeArgs {
                 occlusion: self.occlusion,
                 rays: self.rays,
                 thickness: self.thickness,
-                bent_normals: false,
+                bent_normals: self.bent_normals,
             },
             gamma: self.gamma,
             color: self.color,

@@ -170,6 +170,20 @@ pub fn write_result_ply(
     comment: &str,
     path: &Path,
 ) -> Result<Vec<String>> {
+    write_result_ply_with(ply, ao, &[], gamma, color, comment, path)
+}
+
+/// [`write_result_ply`] with further float vertex columns (`extra`: name and one value per
+/// vertex), which replace the input's columns of the same name.
+pub fn write_result_ply_with(
+    ply: &PlyFile,
+    ao: &[f32],
+    extra: &[(&str, Vec<f64>)],
+    gamma: f32,
+    color: ColorMode,
+    comment: &str,
+    path: &Path,
+) -> Result<Vec<String>> {
     if ao.iter().any(|a| !a.is_finite()) {
         return Err(Error::Param(format!(
             "{}: refusing to write a non-finite ao value (internal error)",
@@ -233,6 +247,9 @@ pub fn write_result_ply(
             (false, _) if present > 0 => {}
             _ => cols.push((c, ScalarType::U8, &greys)),
         }
+    }
+    for (name, v) in extra {
+        cols.push((name, ScalarType::F32, v));
     }
     let listed: Vec<&str> = names.iter().map(String::as_str).collect();
     let comments = [comment.to_string(), ao_comment(&listed)];

@@ -5,13 +5,13 @@
 
 use super::dataset::Dataset;
 use super::output::{
-    ao_comment, colour_step, grey, write_result_ply, ColorMode, CLOUDCOMPARE_AO, MESHLAB_AO,
+    ao_comment, colour_step, grey, write_result_ply_with, ColorMode, CLOUDCOMPARE_AO, MESHLAB_AO,
 };
 use super::ply::{round, PlyFile, PropertyKind, ScalarType};
 use super::raw::{PointTable, RawGrid};
 use super::source::{Container, Format};
 use crate::error::{Error, Result};
-use glam::DVec3;
+use glam::{DMat4, DVec3, Vec3};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -124,16 +124,51 @@ pub fn plan_files(
     Ok(units)
 }
 
+/// The names of the bent normal's columns.
+pub const BENT_COLUMNS: [&str; 3] = ["bnx", "bny", "bnz"];
+
+/// Whether an output can carry bent normals: PLY always, other formats when written as a table
+/// (LAS and E57 written back in their own format keep their records' layout).
+pub fn carries_bent_normals(unit: &OutputUnit) -> bool {
+    unit.format == Format::Ply || !unit.same_family
+}
+
+/// The bent normals of scan `i`'s valid points as the columns [`BENT_COLUMNS`], turned from
+/// the scan's local frame into the frame that `to_world` leaves (identity: world) and
+/// normalised; a point whose every ray was blocked keeps a zero vector.
+fn bent_columns(ds: &Dataset, i: usize, bent: &[Vec3], to_world: DMat4) -> [Vec<f64>; 3] {
+    let m = to_world.inverse() * ds.scans[i].pose;
+    let turned: Vec<DVec3> = bent
+        .iter()
+        .map(|b| m.transform_vector3(b.as_dvec3()).normalize_or_zero())
+        .collect();
+    [0, 1, 2].map(|k| turned.iter().map(|v| v[k]).collect())
+}
+
 /// Writes one output. `ao[i]` holds scan `i`'s AO per valid point (the order of
-/// [`Scan::points`](crate::scan::Scan::points)); every value must be finite. Returns what
-/// the user should know about the output (points the LAS grid merges).
+/// [`Scan::points`](crate::scan::Scan::points)); every value must be finite. `bent[i]`,
+/// when given, its bent normals in its local frame: written in the file's frame to a PLY
+/// written back, in world coordinates to a table. Returns what the user should know about the
+/// output (points the LAS grid merges).
 pub fn write(
     unit: &OutputUnit,
     ds: &Dataset,
     ao: &[Vec<f32>],
+    bent: &[Option<Vec<Vec3>>],
     opts: WriteOptions,
     comment: &str,
 ) -> Result<Vec<String>> {
+    let has_bent = unit
+        .scans
+        .iter()
+        .any(|&i| bent.get(i).is_some_and(Option::is_some));
+    if has_bent && !carries_bent_normals(unit) {
+        return Err(Error::Param(format!(
+            "{}: bent normals are not written into LAS or E57 results written back in their \
+             own format; add --format ply",
+            unit.path.display()
+        )));
+    }
     for &i in &unit.scans {
         if ao[i].iter().any(|a| !a.is_finite()) {
             return Err(Error::Param(format!(
@@ -168,9 +203,28 @@ pub fn write(
                 } else {
                     ply.as_ref()
                 };
-                return write_result_ply(
+                let mut extra = Vec::new();
+                if let Some(b) = bent.get(i).and_then(Option::as_ref) {
+                    let cols = bent_columns(ds, i, b, ds.file_to_world[i]);
+                    for (name, v) in BENT_COLUMNS.into_iter().zip(cols) {
+                        // The rows written are the kept vertices (as `per_vertex`) or all of
+                        // them, where those without a valid point keep 0 (their AO keeps 1).
+                        let full = if s.skipped_nonfinite > 0 {
+                            v
+                        } else {
+                            let mut full = vec![0.0f64; s.vertex_count];
+                            for (k, &vi) in s.source_index.iter().enumerate() {
+                                full[vi as usize] = v[k];
+                            }
+                            full
+                        };
+                        extra.push((name, full));
+                    }
+                }
+                return write_result_ply_with(
                     ply,
                     &per_vertex,
+                    &extra,
                     opts.gamma,
                     opts.color,
                     comment,
@@ -206,7 +260,16 @@ pub fn write(
         let tables: Vec<PointTable> = unit
             .scans
             .iter()
-            .map(|&i| table_of(ds, i, &ao[i], opts))
+            .map(|&i| {
+                let mut t = table_of(ds, i, &ao[i], opts)?;
+                if let Some(b) = bent.get(i).and_then(Option::as_ref) {
+                    t.extra.retain(|(n, _)| !BENT_COLUMNS.contains(&n.as_str()));
+                    let cols = bent_columns(ds, i, b, DMat4::IDENTITY);
+                    t.extra
+                        .extend(BENT_COLUMNS.into_iter().map(String::from).zip(cols));
+                }
+                Ok(t)
+            })
             .collect::<Result<_>>()?;
         match unit.format {
             Format::Ply => write_table_ply(&tables[0], comment, &unit.path),

@@ -41,17 +41,26 @@ pub struct Merged {
     pub bent: Option<Vec<glam::Vec3>>,
 }
 
+/// What the merge hands on for one input file, per scan of the file (empty, or `None`, for a
+/// scan not selected).
+#[derive(Debug, Default)]
+pub struct FileValues {
+    /// AO per point.
+    pub ao: Vec<Vec<f32>>,
+    /// Bent normal per point (scan-local frame), when asked for.
+    pub bent: Vec<Option<Vec<glam::Vec3>>>,
+}
+
 /// Where the merged scans go.
 pub trait Sink {
     /// Scan `scan` was merged; `own` are its maps and `sum` its summary.
     fn scan(&mut self, scan: &Scan, m: &Merged, own: &MergeMaps, sum: &Summary) -> Result<()>;
-    /// Every selected scan of input file `fi` was merged: `aos` per scan of the file (empty
-    /// for a scan not selected).
+    /// Every selected scan of input file `fi` was merged, with these values.
     fn file(
         &mut self,
         fi: usize,
         opened: Opened<'_>,
-        aos: Vec<Vec<f32>>,
+        values: FileValues,
         store: &mut dyn ViewStore,
     ) -> Result<()>;
     /// The stage is over.
@@ -122,7 +131,10 @@ pub fn run(
         }
         let opened = inputs.for_merge(fi)?;
         read += inputs.bytes(fi);
-        let mut aos: Vec<Vec<f32>> = vec![Vec::new(); opened.scans.len()];
+        let mut values = FileValues {
+            ao: vec![Vec::new(); opened.scans.len()],
+            bent: vec![None; opened.scans.len()],
+        };
         for &i in &mine {
             let s = &opened.scans[cat[i].index];
             pos += 1;
@@ -163,9 +175,10 @@ pub fn run(
             };
             let sum = store.summary(i)?;
             sink.scan(s, &m, &own, &sum)?;
-            aos[cat[i].index] = m.ao;
+            values.ao[cat[i].index] = m.ao;
+            values.bent[cat[i].index] = m.bent;
         }
-        sink.file(fi, opened, aos, store)?;
+        sink.file(fi, opened, values, store)?;
     }
     sink.finish()?;
     let secs = t0.elapsed().as_secs_f64();

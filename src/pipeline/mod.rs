@@ -32,7 +32,7 @@ use crate::store::{MemoryStore, Summary, ViewStore, WorkDirSetup, WorkDirStore};
 use crate::view::PreparedView;
 use catalog::{Catalog, Inputs as _, Opened};
 use glam::DVec3;
-use merge::{MergeJob, Merged, Sink};
+use merge::{FileValues, MergeJob, Merged, Sink};
 use plan::{robust_diagonal, ssao_params};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -164,7 +164,7 @@ impl Sink for Collect {
         &mut self,
         _fi: usize,
         _opened: Opened<'_>,
-        _aos: Vec<Vec<f32>>,
+        _values: FileValues,
         _store: &mut dyn ViewStore,
     ) -> Result<()> {
         Ok(())

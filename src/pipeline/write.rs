@@ -4,7 +4,7 @@
 //! report.
 
 use super::catalog::Opened;
-use super::merge::{Merged, Sink};
+use super::merge::{FileValues, Merged, Sink};
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::dataset::Dataset;
@@ -92,6 +92,16 @@ pub fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<Vec<PathBuf>> 
     }
     let selected = |n: &str| cfg.only.is_empty() || cfg.only.iter().any(|o| o == n);
     let units = results::plan_files(&files, cfg.format, &cfg.out_dir)?;
+    if cfg.compute.bent_normals {
+        if let Some(u) = units.iter().find(|u| !results::carries_bent_normals(u)) {
+            return Err(Error::Param(format!(
+                "{}: --bent-normals cannot be written into a .{} result written back in its \
+                 own format; add --format ply",
+                u.path.display(),
+                u.format.extension()
+            )));
+        }
+    }
     let mut outputs: Vec<PathBuf> = units
         .iter()
         .filter(|u| u.scans.iter().any(|&i| selected(&cat[i].name)))
@@ -289,9 +299,10 @@ impl Sink for Writer<'_> {
         &mut self,
         fi: usize,
         opened: Opened<'_>,
-        aos: Vec<Vec<f32>>,
+        values: FileValues,
         store: &mut dyn ViewStore,
     ) -> Result<()> {
+        let FileValues { ao: aos, bent } = values;
         let pf = opened.placed.ok_or_else(|| {
             Error::Param("an input file without its placement (internal error)".into())
         })?;
@@ -336,7 +347,7 @@ impl Sink for Writer<'_> {
         let write_all = move || -> Result<Vec<String>> {
             let mut warnings = Vec::new();
             for u in &todo {
-                warnings.extend(results::write(u, &ds, &aos, wopts, &comment)?);
+                warnings.extend(results::write(u, &ds, &aos, &bent, wopts, &comment)?);
             }
             Ok(warnings)
         };
