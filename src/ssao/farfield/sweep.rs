@@ -8,6 +8,9 @@ use glam::{Vec2, Vec3, Vec3A};
 use rayon::prelude::*;
 use std::f32::consts::{PI, TAU};
 
+/// Turn below which a hull vertex counts as collinear with its neighbours (radians).
+const COLLINEAR: f32 = 1e-4;
+
 /// A sample outside the map or on an empty pixel.
 const EMPTY_SAMPLE: u32 = u32::MAX;
 
@@ -411,11 +414,16 @@ fn hull(block: &[u32], m: Vec3A, pos: &[Vec3]) -> Vec<u32> {
         Vec3A::Z
     };
     let (ea, eb) = m.any_orthonormal_pair();
+    // Coordinates relative to one of the block's points keep f32 cancellation small.
+    let origin = block
+        .iter()
+        .find(|&&s| s != EMPTY_SAMPLE)
+        .map_or(Vec3A::ZERO, |&s| Vec3A::from(pos[s as usize]));
     let mut pts: Vec<(f32, f32, u32)> = block
         .iter()
         .filter(|&&s| s != EMPTY_SAMPLE)
         .map(|&s| {
-            let q = Vec3A::from(pos[s as usize]);
+            let q = Vec3A::from(pos[s as usize]) - origin;
             (q.dot(ea), q.dot(eb), s)
         })
         .filter(|p| p.0.is_finite() && p.1.is_finite())
@@ -425,8 +433,13 @@ fn hull(block: &[u32], m: Vec3A, pos: &[Vec3]) -> Vec<u32> {
     if pts.len() <= 3 {
         return pts.iter().map(|p| p.2).collect();
     }
+    // A vertex that turns the boundary by less than COLLINEAR radians is dropped: on a plane
+    // seen along a line every sample is a vertex up to rounding, and the tangent through its
+    // neighbours is the same within that angle.
     let cross = |o: (f32, f32, u32), a: (f32, f32, u32), b: (f32, f32, u32)| {
-        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+        let (ax, ay, bx, by) = (a.0 - o.0, a.1 - o.1, b.0 - o.0, b.1 - o.1);
+        let turn = ax * by - ay * bx;
+        turn - COLLINEAR * ((ax * ax + ay * ay) * (bx * bx + by * by)).sqrt()
     };
     let mut out: Vec<(f32, f32, u32)> = Vec::with_capacity(pts.len() + 1);
     for pass in 0..2 {
