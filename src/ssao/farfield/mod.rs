@@ -82,6 +82,10 @@ const NEAR: i64 = 8;
 const BLOCK: i64 = 16;
 /// Largest number of line families.
 const MAX_FAMILIES: usize = 64;
+/// Rows and columns of the pixel tiles evaluated family by family: neighbouring receivers
+/// snap to neighbouring lines and read the same blocks, which stay in cache across the tile.
+const TILE_H: usize = 8;
+const TILE_W: usize = 32;
 
 /// Whether `prm` asks for plain ambient occlusion, the quantity the sweeps compute: a falloff
 /// that blocks every direction at a finite distance (`t_max = ∞`). Every other falloff is left
@@ -109,19 +113,14 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
         fams: &fams,
     };
     let w = g.width;
-    ao.par_chunks_mut(w)
-        .zip(flag.par_chunks_mut(w))
+    ao.par_chunks_mut(w * TILE_H)
+        .zip(flag.par_chunks_mut(w * TILE_H))
         .enumerate()
-        .for_each(|(y, (arow, frow))| {
-            for x in 0..w {
-                let c = y * w + x;
-                if !g.is_valid(c) {
-                    continue;
-                }
-                match ctx.pixel(x, y, c) {
-                    Some(a) => arow[x] = a,
-                    None => frow[x] = true,
-                }
+        .for_each(|(band, (aband, fband))| {
+            let mut tile = Tile::new(2 * fams.len());
+            for x0 in (0..w).step_by(TILE_W) {
+                let x1 = (x0 + TILE_W).min(w);
+                tile.run(&ctx, band * TILE_H, x0..x1, aband, fband);
             }
         });
     AoMap {
@@ -147,9 +146,102 @@ struct Node {
     t: f32,
 }
 
+/// What a pixel's half-planes share: its point, normal and frame around `V`.
+#[derive(Debug, Clone, Copy)]
+struct Frame {
+    c: usize,
+    centre: (f32, f32),
+    pa: Vec3A,
+    nrm: Vec3A,
+    view: Vec3A,
+    e1: Vec3A,
+    e2: Vec3A,
+    /// `n·V`.
+    a: f32,
+}
+
+/// The pixels of one tile, their frames and the half-plane nodes gathered so far.
+struct Tile {
+    frames: Vec<Option<Frame>>,
+    /// `per` nodes per pixel, `count` of them filled.
+    nodes: Vec<Node>,
+    count: Vec<usize>,
+    any: Vec<bool>,
+    per: usize,
+}
+
+impl Tile {
+    fn new(per: usize) -> Tile {
+        let n = TILE_H * TILE_W;
+        Tile {
+            frames: Vec::with_capacity(n),
+            nodes: vec![Node::default(); n * per],
+            count: Vec::with_capacity(n),
+            any: Vec::with_capacity(n),
+            per,
+        }
+    }
+
+    /// Evaluates the valid pixels of columns `xs` in the rows of a band starting at row `y0`
+    /// (`aband` and `fband` hold the band's AO and flags), every family in turn over the tile.
+    fn run(
+        &mut self,
+        ctx: &Ctx,
+        y0: usize,
+        xs: std::ops::Range<usize>,
+        aband: &mut [f32],
+        fband: &mut [bool],
+    ) {
+        let w = ctx.g.width;
+        let rows = aband.len() / w;
+        self.frames.clear();
+        for dy in 0..rows {
+            for x in xs.clone() {
+                let c = (y0 + dy) * w + x;
+                if ctx.g.is_valid(c) {
+                    let f = ctx.frame(x, y0 + dy, c);
+                    if f.is_none() {
+                        fband[dy * w + x] = true;
+                    }
+                    self.frames.push(f);
+                }
+            }
+        }
+        let n = self.frames.len();
+        self.count.clear();
+        self.count.resize(n, 0);
+        self.any.clear();
+        self.any.resize(n, false);
+        for fam in ctx.fams {
+            for (j, f) in self.frames.iter().enumerate() {
+                let Some(f) = f else { continue };
+                let at = j * self.per + self.count[j];
+                let (added, seen) = ctx.half_planes(f, fam, &mut self.nodes[at..at + 2]);
+                self.count[j] += added;
+                self.any[j] |= seen;
+            }
+        }
+        for (j, f) in self.frames.iter().enumerate() {
+            let Some(f) = f else { continue };
+            let i = f.c - y0 * w;
+            if !self.any[j] {
+                fband[i] = true;
+                continue;
+            }
+            let nodes = &mut self.nodes[j * self.per..j * self.per + self.count[j]];
+            let a = weighted(nodes);
+            if a.is_finite() {
+                aband[i] = a.clamp(0.0, 1.0);
+            } else {
+                fband[i] = true;
+            }
+        }
+    }
+}
+
 impl Ctx<'_> {
-    /// Plain ambient occlusion of valid pixel `c = (x, y)`; `None` when it must be flagged.
-    fn pixel(&self, x: usize, y: usize, c: usize) -> Option<f32> {
+    /// The frame of valid pixel `c = (x, y)`; `None` when it must be flagged.
+    fn frame(&self, x: usize, y: usize, c: usize) -> Option<Frame> {
         let p = self.g.position[c];
         let len = self.g.normal[c].length();
         if !(len > 1e-6 && len.is_finite() && p.is_finite()) {
@@ -160,41 +252,46 @@ impl Ctx<'_> {
         if !(view.length_squared() > 0.5) {
             return None;
         }
-        let pa = Vec3A::from(p);
         let (e1, e2) = view.any_orthonormal_pair();
-        let a = nrm.dot(view);
-        let centre = (x as f32 + 0.5, y as f32 + 0.5);
-        let mut nodes = [Node::default(); 2 * MAX_FAMILIES];
-        let (mut count, mut any) = (0usize, false);
-        for fam in self.fams {
-            let Some((line, i)) = fam.locate(centre, -view) else {
+        Some(Frame {
+            c,
+            centre: (x as f32 + 0.5, y as f32 + 0.5),
+            pa: Vec3A::from(p),
+            nrm,
+            view,
+            e1,
+            e2,
+            a: nrm.dot(view),
+        })
+    }
+
+    /// The nodes of the two half-planes of `fam`'s line through the pixel, written to `out`:
+    /// how many, and whether any valid sample was read.
+    fn half_planes(&self, f: &Frame, fam: &Family, out: &mut [Node]) -> (usize, bool) {
+        let Some((line, i)) = fam.locate(f.centre, -f.view) else {
+            return (0, false);
+        };
+        let m = fam.normal(line);
+        let Some(back) = (m.cross(f.view)).try_normalize() else {
+            return (0, false);
+        };
+        let (mut count, mut any) = (0, false);
+        for (u, dir) in [(back, -1i64), (-back, 1i64)] {
+            let b = f.nrm.dot(u);
+            let Some(half) = Half::new(f.a, b, u, f.view, f.nrm) else {
                 continue;
             };
-            let m = fam.normal(line);
-            let Some(back) = (m.cross(view)).try_normalize() else {
-                continue;
+            let (blocked, seen) = fam.horizon(line, i, dir, f.c, f.pa, &half, self.pts);
+            any |= seen;
+            let t = half.open();
+            out[count] = Node {
+                psi: u.dot(f.e2).atan2(u.dot(f.e1)),
+                s: (t - blocked).max(0.0),
+                t,
             };
-            for (u, dir) in [(back, -1i64), (-back, 1i64)] {
-                let b = nrm.dot(u);
-                let Some(half) = Half::new(a, b, u, view, nrm) else {
-                    continue;
-                };
-                let (blocked, seen) = fam.horizon(line, i, dir, c, pa, &half, self.pts);
-                any |= seen;
-                let t = half.open();
-                nodes[count] = Node {
-                    psi: u.dot(e2).atan2(u.dot(e1)),
-                    s: (t - blocked).max(0.0),
-                    t,
-                };
-                count += 1;
-            }
+            count += 1;
         }
-        if !any {
-            return None;
-        }
-        let a = weighted(&mut nodes[..count]);
-        a.is_finite().then(|| a.clamp(0.0, 1.0))
+        (count, any)
     }
 }
 

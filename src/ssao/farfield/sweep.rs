@@ -8,6 +8,9 @@ use glam::{Vec2, Vec3, Vec3A};
 use rayon::prelude::*;
 use std::f32::consts::{PI, TAU};
 
+/// Turn below which a hull vertex counts as collinear with its neighbours (radians).
+const COLLINEAR: f32 = 1e-4;
+
 /// A sample outside the map or on an empty pixel.
 const EMPTY_SAMPLE: u32 = u32::MAX;
 
@@ -47,18 +50,29 @@ pub(super) struct Family {
     normals: Vec<Vec3A>,
     /// `lines × len` sample pixels.
     samples: Vec<u32>,
-    /// Per line and block: the range of its hull vertices in `verts`.
-    blocks: Vec<(u32, u32)>,
+    /// Level `k` cuts every line into blocks of `BLOCK << k` samples: per level, line and
+    /// block, the range of its hull vertices in `verts`.
+    levels: Vec<Level>,
     verts: Vec<u32>,
+}
+
+/// One level of the block hierarchy.
+struct Level {
+    /// Blocks per line.
     nblocks: usize,
+    /// `lines × nblocks` ranges in [`Family::verts`].
+    blocks: Vec<(u32, u32)>,
 }
 
 impl Family {
     /// Family `f` of `k` for the map `g` seen by `proj`.
     pub(super) fn new(g: &GBuffer, proj: &Projection, f: usize, k: usize) -> Family {
         let (shape, lines, len) = layout(proj, f, k);
-        let nblocks = len.div_ceil(BLOCK as usize);
-        let rows: Vec<(Vec<u32>, Vec3A, Vec<Vec<u32>>)> = (0..lines)
+        let mut depth = 1;
+        while (BLOCK as usize) << (depth - 1) < len {
+            depth += 1;
+        }
+        let rows: Vec<(Vec<u32>, Vec3A, Vec<Vec<Vec<u32>>>)> = (0..lines)
             .into_par_iter()
             .map(|l| {
                 let row: Vec<u32> = (0..len)
@@ -68,10 +82,19 @@ impl Family {
                     })
                     .collect();
                 let m = line_normal(&shape, proj, l, len);
-                let hulls = row
+                let mut hulls: Vec<Vec<Vec<u32>>> = vec![row
                     .chunks(BLOCK as usize)
                     .map(|b| hull(b, m, &g.position))
-                    .collect();
+                    .collect()];
+                // The hull of two blocks' union is the hull of their hulls' vertices.
+                for _ in 1..depth {
+                    let below = hulls.last().expect("level 0");
+                    let up = below
+                        .chunks(2)
+                        .map(|pair| hull(&pair.concat(), m, &g.position))
+                        .collect();
+                    hulls.push(up);
+                }
                 (row, m, hulls)
             })
             .collect();
@@ -81,17 +104,26 @@ impl Family {
             len,
             normals: Vec::with_capacity(lines),
             samples: Vec::with_capacity(lines * len),
-            blocks: Vec::with_capacity(lines * nblocks),
+            levels: (0..depth)
+                .map(|k| {
+                    let nblocks = len.div_ceil((BLOCK as usize) << k);
+                    Level {
+                        nblocks,
+                        blocks: Vec::with_capacity(lines * nblocks),
+                    }
+                })
+                .collect(),
             verts: Vec::new(),
-            nblocks,
         };
         for (row, m, hulls) in rows {
             fam.samples.extend_from_slice(&row);
             fam.normals.push(m);
-            for h in hulls {
-                let start = fam.verts.len() as u32;
-                fam.verts.extend_from_slice(&h);
-                fam.blocks.push((start, fam.verts.len() as u32));
+            for (level, hs) in fam.levels.iter_mut().zip(hulls) {
+                for h in hs {
+                    let start = fam.verts.len() as u32;
+                    fam.verts.extend_from_slice(&h);
+                    level.blocks.push((start, fam.verts.len() as u32));
+                }
             }
         }
         fam
@@ -175,7 +207,6 @@ impl Family {
             (false, false) => n - 1 - i,
         };
         let row = &self.samples[l * self.len..(l + 1) * self.len];
-        let blocks = &self.blocks[l * self.nblocks..(l + 1) * self.nblocks];
         // Seen from the sensor at angle φ round a circle from the receiver, a sample hides
         // only directions γ < π − φ (rays at larger γ never come that far round): it raises
         // the horizon h only while φ ≤ π − h, i.e. cos φ ≥ −cos h.
@@ -198,28 +229,17 @@ impl Family {
         while d <= reach {
             let j = (i + dir * d).rem_euclid(n);
             if d > NEAR {
-                let start = j - j % BLOCK;
-                let end = (start + BLOCK).min(n);
-                let (first, span) = if dir < 0 {
-                    (j == end - 1, j - start + 1)
-                } else {
-                    (j == start, end - start)
-                };
-                if first && d + span - 1 <= reach {
-                    // The whole block within reach of the horizon before it (a raise only
-                    // brings samples nearer reach): its hull stands for it; otherwise its
-                    // samples are read in order.
-                    if reaches(d + span - 1, cur) {
-                        let (v0, v1) = blocks[(start / BLOCK) as usize];
-                        for &s in &self.verts[v0 as usize..v1 as usize] {
-                            if let Some(cg) = gamma(s) {
-                                seen = true;
-                                cur = cur.max(cg);
-                            }
+                if let Some((v0, v1, span)) =
+                    self.block_at(l, j, d, dir, reach, |e| reaches(e, cur))
+                {
+                    for &s in &self.verts[v0..v1] {
+                        if let Some(cg) = gamma(s) {
+                            seen = true;
+                            cur = cur.max(cg);
                         }
-                        d += span;
-                        continue;
                     }
+                    d += span;
+                    continue;
                 }
             }
             if let Some(cg) = gamma(row[j as usize]) {
@@ -239,6 +259,47 @@ impl Family {
             d += 1;
         }
         (half.blocked(cur, upper) + closed, seen)
+    }
+}
+
+impl Family {
+    /// The largest block of line `l` that sample `j` (at `d` samples from the receiver, walking
+    /// in direction `dir`) enters first, that is no longer than `d` (blocks grow with the
+    /// distance, so a half-plane reads a number of them logarithmic in the line's length),
+    /// ends within `reach` and whose last sample `e` passes `within(e)`: the range of its hull
+    /// vertices and its length. `None` when no block qualifies (the sample is read alone).
+    #[inline]
+    fn block_at(
+        &self,
+        l: usize,
+        j: i64,
+        d: i64,
+        dir: i64,
+        reach: i64,
+        within: impl Fn(i64) -> bool,
+    ) -> Option<(usize, usize, i64)> {
+        let n = self.len as i64;
+        for (k, level) in self.levels.iter().enumerate().rev() {
+            let size = BLOCK << k;
+            if size > d.max(BLOCK) {
+                continue;
+            }
+            let start = j - j % size;
+            let end = (start + size).min(n);
+            let (first, span) = if dir < 0 {
+                (j == end - 1, j - start + 1)
+            } else {
+                (j == start, end - start)
+            };
+            let last = d + span - 1;
+            // A raise only brings samples nearer reach, so the check on the last sample
+            // with the horizon before the block holds for all of them.
+            if first && last <= reach && within(last) {
+                let (v0, v1) = level.blocks[l * level.nblocks + (start / size) as usize];
+                return Some((v0 as usize, v1 as usize, span));
+            }
+        }
+        None
     }
 }
 
@@ -353,11 +414,16 @@ fn hull(block: &[u32], m: Vec3A, pos: &[Vec3]) -> Vec<u32> {
         Vec3A::Z
     };
     let (ea, eb) = m.any_orthonormal_pair();
+    // Coordinates relative to one of the block's points keep f32 cancellation small.
+    let origin = block
+        .iter()
+        .find(|&&s| s != EMPTY_SAMPLE)
+        .map_or(Vec3A::ZERO, |&s| Vec3A::from(pos[s as usize]));
     let mut pts: Vec<(f32, f32, u32)> = block
         .iter()
         .filter(|&&s| s != EMPTY_SAMPLE)
         .map(|&s| {
-            let q = Vec3A::from(pos[s as usize]);
+            let q = Vec3A::from(pos[s as usize]) - origin;
             (q.dot(ea), q.dot(eb), s)
         })
         .filter(|p| p.0.is_finite() && p.1.is_finite())
@@ -367,8 +433,13 @@ fn hull(block: &[u32], m: Vec3A, pos: &[Vec3]) -> Vec<u32> {
     if pts.len() <= 3 {
         return pts.iter().map(|p| p.2).collect();
     }
+    // A vertex that turns the boundary by less than COLLINEAR radians is dropped: on a plane
+    // seen along a line every sample is a vertex up to rounding, and the tangent through its
+    // neighbours is the same within that angle.
     let cross = |o: (f32, f32, u32), a: (f32, f32, u32), b: (f32, f32, u32)| {
-        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+        let (ax, ay, bx, by) = (a.0 - o.0, a.1 - o.1, b.0 - o.0, b.1 - o.1);
+        let turn = ax * by - ay * bx;
+        turn - COLLINEAR * ((ax * ax + ay * ay) * (bx * bx + by * by)).sqrt()
     };
     let mut out: Vec<(f32, f32, u32)> = Vec::with_capacity(pts.len() + 1);
     for pass in 0..2 {
