@@ -56,6 +56,9 @@ pub(super) struct Family {
     verts: Vec<u32>,
 }
 
+/// One line's hull vertices per block of one level.
+type LevelHulls = Vec<Vec<u32>>;
+
 /// One level of the block hierarchy.
 struct Level {
     /// Blocks per line.
@@ -72,7 +75,7 @@ impl Family {
         while (BLOCK as usize) << (depth - 1) < len {
             depth += 1;
         }
-        let rows: Vec<(Vec<u32>, Vec3A, Vec<Vec<Vec<u32>>>)> = (0..lines)
+        let rows: Vec<(Vec<u32>, Vec3A, Vec<LevelHulls>)> = (0..lines)
             .into_par_iter()
             .map(|l| {
                 let row: Vec<u32> = (0..len)
@@ -82,19 +85,20 @@ impl Family {
                     })
                     .collect();
                 let m = line_normal(&shape, proj, l, len);
-                let mut hulls: Vec<Vec<Vec<u32>>> = vec![row
+                let mut below: LevelHulls = row
                     .chunks(BLOCK as usize)
                     .map(|b| hull(b, m, &g.position))
-                    .collect()];
+                    .collect();
+                let mut hulls = Vec::with_capacity(depth);
                 // The hull of two blocks' union is the hull of their hulls' vertices.
                 for _ in 1..depth {
-                    let below = hulls.last().expect("level 0");
                     let up = below
                         .chunks(2)
                         .map(|pair| hull(&pair.concat(), m, &g.position))
                         .collect();
-                    hulls.push(up);
+                    hulls.push(std::mem::replace(&mut below, up));
                 }
+                hulls.push(below);
                 (row, m, hulls)
             })
             .collect();
