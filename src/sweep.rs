@@ -1,7 +1,8 @@
 //! `mvao sweep`: error against run time over a grid of settings. Reads the dataset and its
 //! reference once, then runs the in-memory computation per setting (timed without file I/O),
-//! scores single-view SSAO and the merge against the reference, and writes `sweep.csv` and
-//! `sweep.svg` (e_A against wall time, Pareto front marked).
+//! scores single-view SSAO, the merge (average of the views' AO) and, when asked, the union
+//! occlusion against the reference, and writes `sweep.csv` and `sweep.svg` (e_A against wall
+//! time, Pareto front marked).
 
 use crate::accuracy::evaluate;
 use crate::config::ComputeParams;
@@ -9,6 +10,7 @@ use crate::error::{Error, Result};
 use crate::eval::Metrics;
 use crate::io::dataset::{Dataset, PlaceOptions};
 use crate::io::reference::{check_reference_matches, load_reference};
+use crate::merge::union::Occlusion;
 use crate::pipeline::compute;
 use crate::plot::{self, PlotPoint};
 use crate::progress::Silent;
@@ -18,7 +20,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Columns of `sweep.csv`, in order. Scripts that add rows (e.g. the pymeshlab comparison)
-/// write the same columns.
+/// write the same columns. `method` is `ssao` (single view), `mvao` (average of the views'
+/// AO, N neighbours) or `union` (union occlusion, whose `samples` are its rays per point).
 pub const CSV_COLUMNS: [&str; 20] = [
     "dataset",
     "method",
@@ -101,6 +104,9 @@ pub struct SweepConfig {
     pub base: ComputeParams,
     /// The grid.
     pub grid: Vec<Setting>,
+    /// Rays per point of the union occlusion run with every horizon setting (none: no union
+    /// rows).
+    pub union_rays: Vec<u32>,
     /// Overwrite existing outputs.
     pub force: bool,
 }
@@ -108,7 +114,7 @@ pub struct SweepConfig {
 /// One row of the CSV.
 #[derive(Debug, Clone)]
 pub struct Row {
-    /// "ssao" (single view) or "mvao".
+    /// "ssao" (single view), "mvao" (average) or "union".
     pub method: String,
     /// The setting.
     pub setting: Setting,
@@ -200,6 +206,42 @@ pub fn run(cfg: &SweepConfig, progress: &dyn Fn(&str)) -> Result<Vec<Row>> {
                 row.metrics.one_line()
             ));
             rows.push(row);
+        }
+        if st.estimator == Estimator::Horizon {
+            for &rays in &cfg.union_rays {
+                let prm = ComputeParams {
+                    directions: st.directions,
+                    steps: st.steps,
+                    occlusion: Occlusion::Union,
+                    rays,
+                    ssao_only: false,
+                    ..cfg.base.clone()
+                };
+                let t0 = Instant::now();
+                let c = compute(&ds.scans, &prm, &Silent)?;
+                let wall = t0.elapsed().as_secs_f64();
+                let ao: Vec<Vec<f32>> = c.scans.iter().map(|r| r.ao.clone()).collect();
+                let acc = evaluate(&cfg.reference, &names, None, &ao, &refs);
+                let row = Row {
+                    method: "union".into(),
+                    setting: Setting {
+                        samples: rays,
+                        ..st.clone()
+                    },
+                    neighbors: 0,
+                    radius: c.ssao.radius,
+                    tmax: c.ssao.tmax,
+                    points,
+                    wall_s: wall,
+                    metrics: acc.result,
+                };
+                progress(&format!(
+                    "union {} {rays} rays: {wall:.2} s, {}",
+                    budget(st),
+                    row.metrics.one_line()
+                ));
+                rows.push(row);
+            }
         }
     }
     std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
@@ -305,6 +347,13 @@ pub fn plot_csv(csv: &Path, svg: &Path, title: &str) -> Result<()> {
         let n = get(&f, col("neighbors")).unwrap_or_default();
         let (series, label) = match method.as_str() {
             "mvao" => (format!("MVAO {est}"), format!("{label} N={n}")),
+            "union" => (
+                format!("union {est}"),
+                format!(
+                    "{label} {} rays",
+                    get(&f, col("samples")).unwrap_or_default()
+                ),
+            ),
             "ssao" => (format!("SSAO {est}"), label),
             m => (m.to_string(), label),
         };

@@ -123,6 +123,8 @@ fn sweep_writes_csv_and_plot_and_a_wrong_reference_is_refused() {
         "0.4",
         "--dataset",
         "tiny, room",
+        "--union-rays",
+        "8",
         "--reference",
         refdir.to_str().unwrap(),
         "-o",
@@ -132,16 +134,23 @@ fn sweep_writes_csv_and_plot_and_a_wrong_reference_is_refused() {
     mvao_ok(&s);
     let text = std::fs::read_to_string(sw.join("sweep.csv")).unwrap();
     let lines: Vec<&str> = text.lines().collect();
-    // 4 settings × (1 single-view row + 2 merge rows).
-    assert_eq!(lines.len(), 1 + 4 * 3, "{text}");
+    // 4 settings × (1 single-view row + 2 merge rows), and a union row per horizon setting.
+    assert_eq!(lines.len(), 1 + 4 * 3 + 2, "{text}");
     let cols = lines[0].split(',').count();
     for l in &lines[1..] {
         assert_eq!(l.split(',').count(), cols, "{l}");
         assert!(l.starts_with("tiny  room,"));
     }
-    assert!(std::fs::read_to_string(sw.join("sweep.svg"))
-        .unwrap()
-        .contains("Pareto"));
+    let union: Vec<&&str> = lines.iter().filter(|l| l.contains(",union,")).collect();
+    assert_eq!(union.len(), 2, "{text}");
+    for l in union {
+        let f: Vec<&str> = l.split(',').collect();
+        assert_eq!((f[2], f[3]), ("horizon", "8"), "{l}");
+        let e_a: f64 = f[11].parse().unwrap();
+        assert!(e_a.is_finite() && e_a < 0.2, "{l}");
+    }
+    let svg = std::fs::read_to_string(sw.join("sweep.svg")).unwrap();
+    assert!(svg.contains("Pareto") && svg.contains("union horizon"));
 
     // A reference of other scans: named, refused.
     let other = d.path().join("other");

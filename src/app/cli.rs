@@ -337,6 +337,11 @@ pub struct SweepArgs {
     /// `merge`).
     #[arg(long, value_enum, default_value_t = Sampling::Uniform)]
     pub sampling: Sampling,
+    /// Also run the union occlusion (`merge --occlusion union`) with every horizon setting, at
+    /// each of these rays per point (comma-separated).
+    #[arg(long, value_name = "K,...", value_delimiter = ',',
+          value_parser = clap::value_parser!(u32).range(2..=4096))]
+    pub union_rays: Vec<u32>,
     /// Fewer settings (paper 16/32, horizon 4×4/8×8; N = 1, 3): a quick look.
     #[arg(long)]
     pub quick: bool,

@@ -218,6 +218,7 @@ fn sweep(args: SweepArgs) -> anyhow::Result<()> {
             ..ComputeParams::default()
         },
         grid,
+        union_rays: args.union_rays,
         force: args.force,
     };
     let rows = mvao::sweep::run(&cfg, &|line| eprintln!("{line}"))?;
