@@ -493,9 +493,11 @@ pub struct SynthArgs {
     /// Leave the exact normals out of the scans.
     #[arg(long)]
     pub no_normals: bool,
-    /// Write a depth-camera stream of this many frames instead of scans (room scene): a
-    /// camera loop with structured-light noise, 16-bit PNG frames, trajectory.log,
-    /// intrinsics.txt and, with --reference-rays, the ground truth per pixel in truth/.
+    /// Write a depth-camera stream of this many frames instead of scans (the room, or a mesh
+    /// scene: the camera orbits the --look-at point through the first --at position, else the
+    /// built-in scene's first station): structured-light noise, 16-bit PNG frames,
+    /// trajectory.log, intrinsics.txt and, with --reference-rays, the ground truth per pixel in
+    /// truth/.
     #[arg(long, default_value_t = 0)]
     pub frames: u32,
 }

@@ -202,15 +202,13 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `mvao synth --frames N`: a synthetic depth stream of the room with its ground truth.
+/// `mvao synth --frames N`: a synthetic depth stream of the room or of a mesh scene with its
+/// ground truth.
 pub fn synth(args: super::cli::SynthArgs) -> anyhow::Result<()> {
-    use mvao::stream::synth::{room_trajectory, synth_stream, write_stream, StreamSynthOptions};
-    if !args.scene.eq_ignore_ascii_case("room") {
-        anyhow::bail!(
-            "--frames: depth streams are made of the room scene only, got --scene {}",
-            args.scene
-        );
-    }
+    use mvao::stream::synth::{
+        orbit_trajectory, room_trajectory, synth_stream, write_stream, StreamSynthOptions,
+    };
+    use mvao::synth::{Mesh, MeshScene, MeshSource};
     let truth_tmax = mvao::falloff::parse_tmax(&args.reference_tmax, "reference-tmax")
         .map_err(anyhow::Error::msg)?;
     let o = StreamSynthOptions {
@@ -224,14 +222,45 @@ pub fn synth(args: super::cli::SynthArgs) -> anyhow::Result<()> {
         truth_falloff: args.reference_falloff,
         ..StreamSynthOptions::default()
     };
-    let s = synth_stream(&mvao::synth::Scene::room(), &room_trajectory(o.frames), &o);
-    write_stream(&s, &args.output)?;
+    let out = args.output.clone();
+    let name = args.scene.clone();
+    let opts = args.into_options().map_err(anyhow::Error::msg)?;
+    let s = match &opts.mesh {
+        None if name.eq_ignore_ascii_case("room") => {
+            synth_stream(&mvao::synth::Scene::room(), &room_trajectory(o.frames), &o)
+        }
+        None => anyhow::bail!(
+            "--frames: depth streams are made of the room or a mesh scene (colonnade, vault, \
+             relief, porch or a PLY/OBJ file), got --scene {name}"
+        ),
+        Some(src) => {
+            let (mesh, builtin) = match src {
+                MeshSource::File(p) => (Mesh::read(p)?, None),
+                MeshSource::Builtin(k) => (k.mesh(), Some(k.stations())),
+            };
+            let (lo, hi) = mesh.bounds();
+            let (centre, half) = ((lo + hi) / 2.0, ((hi - lo) / 2.0).length().max(1e-6));
+            let target = opts
+                .look_at
+                .or(builtin.as_ref().map(|b| b.1))
+                .unwrap_or(centre);
+            let start = opts
+                .at
+                .first()
+                .copied()
+                .or(builtin.as_ref().and_then(|b| b.0.first().copied()))
+                .unwrap_or(centre + glam::DVec3::new(1.2 * half, 0.0, 0.5 * half));
+            let scene = MeshScene::new(&mesh);
+            synth_stream(&scene, &orbit_trajectory(target, start, o.frames), &o)
+        }
+    };
+    write_stream(&s, &out)?;
     eprintln!(
-        "{} depth frames of {}×{} of the room written to {}",
+        "{} depth frames of {}×{} of {name} written to {}",
         o.frames,
         o.width,
         o.height,
-        args.output.display()
+        out.display()
     );
     Ok(())
 }

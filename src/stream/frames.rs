@@ -46,11 +46,25 @@ pub struct DepthFrame {
 }
 
 /// Parses `fx fy cx cy` (spaces or commas), or reads an Open3D camera JSON
-/// (`intrinsic_matrix`, 9 values, column-major) when `s` names a file ending in `.json`.
+/// (`intrinsic_matrix`, 9 values, column-major) when `s` names a file ending in `.json`, or
+/// `fx fy cx cy` from any other file `s` names (the `intrinsics.txt` of `mvao synth --frames`).
 pub fn parse_intrinsics(s: &str) -> Result<Intrinsics> {
     if s.to_ascii_lowercase().ends_with(".json") {
         return read_open3d_json(Path::new(s));
     }
+    let path = Path::new(s);
+    if path.is_file() {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        return parse_intrinsics_values(text.trim()).map_err(|e| match e {
+            Error::Param(m) => Error::format(path, m.replace("--intrinsics", "intrinsics")),
+            e => e,
+        });
+    }
+    parse_intrinsics_values(s)
+}
+
+/// `fx fy cx cy` (spaces or commas).
+fn parse_intrinsics_values(s: &str) -> Result<Intrinsics> {
     let v: Vec<f64> = s
         .split(|c: char| c == ',' || c.is_whitespace())
         .filter(|t| !t.is_empty())

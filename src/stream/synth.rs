@@ -1,5 +1,5 @@
 //! Synthetic depth streams with exact ground truth: a pinhole camera moving through an
-//! analytic scene, with a structured-light-like noise model (depth-dependent Gaussian noise,
+//! analytic scene or a triangle mesh, with a structured-light-like noise model (depth-dependent Gaussian noise,
 //! millimetre quantisation, holes at depth edges and a few random dropouts), and per pixel
 //! the reference obscurance `A` at the pixel's noise-free point.
 
@@ -8,9 +8,10 @@ use crate::error::{Error, Result};
 use crate::falloff::Falloff;
 use crate::rng::SplitMix64;
 use crate::scan::Scan;
-use crate::synth::reference::analytic_obscurance;
+use crate::synth::reference::{analytic_obscurance, mesh_obscurance};
 use crate::synth::Scene;
-use glam::{DMat3, DMat4, DVec3, Vec3};
+use crate::synth::{MeshScene, Truth};
+use glam::{DMat3, DMat4, DVec3};
 use rayon::prelude::*;
 use std::io::Write as _;
 use std::path::Path;
@@ -67,6 +68,59 @@ pub struct SynthStream {
     pub truth: Vec<Vec<f32>>,
 }
 
+/// What a stream is made of: an analytic scene or a triangle mesh.
+#[derive(Debug, Clone, Copy)]
+pub enum StreamScene<'a> {
+    /// An analytic scene.
+    Analytic(&'a Scene),
+    /// A mesh (`mvao synth --scene` with a built-in mesh or a PLY/OBJ file).
+    Mesh(&'a MeshScene),
+}
+
+impl<'a> From<&'a Scene> for StreamScene<'a> {
+    fn from(s: &'a Scene) -> Self {
+        StreamScene::Analytic(s)
+    }
+}
+
+impl<'a> From<&'a MeshScene> for StreamScene<'a> {
+    fn from(m: &'a MeshScene) -> Self {
+        StreamScene::Mesh(m)
+    }
+}
+
+impl StreamScene<'_> {
+    /// Distance, front normal and primitive of the nearest surface along a unit ray.
+    fn hit(&self, origin: DVec3, dir: DVec3) -> Option<(f64, DVec3, u32)> {
+        match self {
+            StreamScene::Analytic(s) => s
+                .intersect(origin, dir)
+                .map(|h| (h.t, h.normal, h.prim as u32)),
+            StreamScene::Mesh(m) => m
+                .intersect_skip(origin, dir, 0.0, f64::INFINITY, u32::MAX)
+                .map(|h| (h.t, h.normal, h.prim as u32)),
+        }
+    }
+}
+
+/// A camera orbiting `target` once over `frames` frames, through `start` (the orbit's radius
+/// and height above the target are `start`'s), always looking at the target: a handheld
+/// camera walked round an object or a room's middle.
+pub fn orbit_trajectory(target: DVec3, start: DVec3, frames: usize) -> Vec<DMat4> {
+    let off = start - target;
+    let scale = off.length().max(1e-6);
+    // A start straight above the target still orbits, at a tenth of its height.
+    let radius = off.truncate().length().max(0.1 * scale);
+    let a0 = off.y.atan2(off.x);
+    (0..frames)
+        .map(|i| {
+            let a = a0 + std::f64::consts::TAU * i as f64 / frames.max(1) as f64;
+            let pos = target + DVec3::new(radius * a.cos(), radius * a.sin(), off.z);
+            look_pose(pos, target - pos)
+        })
+        .collect()
+}
+
 /// The camera path through the room of [`Scene::room`]: a loop around its middle at eye
 /// height, looking outwards and a little down, so walls, corners, the column, the table and
 /// the ball are each seen from many frames.
@@ -102,7 +156,12 @@ pub fn noise_sigma(z: f64) -> f64 {
 }
 
 /// A synthetic stream of `scene` along `poses`.
-pub fn synth_stream(scene: &Scene, poses: &[DMat4], o: &StreamSynthOptions) -> SynthStream {
+pub fn synth_stream<'a>(
+    scene: impl Into<StreamScene<'a>>,
+    poses: &[DMat4],
+    o: &StreamSynthOptions,
+) -> SynthStream {
+    let scene = scene.into();
     let (w, h) = (o.width, o.height);
     let fx = w as f64 / (2.0 * (o.fov / 2.0).tan());
     let k = Intrinsics {
@@ -116,7 +175,7 @@ pub fn synth_stream(scene: &Scene, poses: &[DMat4], o: &StreamSynthOptions) -> S
         ..Default::default()
     };
     for (fi, pose) in poses.iter().enumerate() {
-        let (frame, truth) = synth_frame(scene, *pose, &k, (w, h), o, fi as u64);
+        let (frame, truth) = synth_frame(&scene, *pose, &k, (w, h), o, fi as u64);
         s.frames.push(frame);
         s.poses.push(*pose);
         s.truth.push(truth);
@@ -126,7 +185,7 @@ pub fn synth_stream(scene: &Scene, poses: &[DMat4], o: &StreamSynthOptions) -> S
 
 /// One frame: noisy z-depth and the ground truth per pixel.
 fn synth_frame(
-    scene: &Scene,
+    scene: &StreamScene,
     pose: DMat4,
     k: &Intrinsics,
     (w, h): (usize, usize),
@@ -135,27 +194,26 @@ fn synth_frame(
 ) -> (DepthFrame, Vec<f32>) {
     let rot = DMat3::from_mat4(pose);
     let origin = pose.w_axis.truncate();
-    // Exact z-depth, world point and normal per pixel.
-    let exact: Vec<Option<(f64, DVec3, DVec3)>> = (0..w * h)
+    // Exact z-depth, world point, normal (towards the camera) and primitive per pixel.
+    let exact: Vec<Option<Exact>> = (0..w * h)
         .into_par_iter()
         .map(|i| {
             let (x, y) = ((i % w) as f64, (i / w) as f64);
             let ray = DVec3::new((x - k.cx) / k.fx, (y - k.cy) / k.fy, 1.0);
             let len = ray.length();
             let d = rot * (ray / len);
-            let hit = scene.intersect(origin, d)?;
-            let mut n = hit.normal;
+            let (t, mut n, prim) = scene.hit(origin, d)?;
             if n.dot(d) > 0.0 {
                 n = -n;
             }
-            Some((hit.t / len, origin + d * hit.t, n))
+            Some((t / len, origin + d * t, n, prim))
         })
         .collect();
     let seed = o.seed ^ index.wrapping_mul(0x9e37_79b9_7f4a_7c15);
     let depth: Vec<f32> = (0..w * h)
         .into_par_iter()
         .map(|i| {
-            let Some((z, _, _)) = exact[i] else {
+            let Some((z, ..)) = exact[i] else {
                 return 0.0;
             };
             let mut rng = SplitMix64::new(seed, i as u64);
@@ -170,7 +228,7 @@ fn synth_frame(
                         return false;
                     }
                     exact[ny as usize * w + nx as usize]
-                        .is_none_or(|(q, _, _)| (q - z).abs() > 0.04 * z)
+                        .is_none_or(|(q, ..)| (q - z).abs() > 0.04 * z)
                 });
             let u = rng.next_f64();
             if (edge && u < 0.6) || u < 0.01 * o.noise.min(1.0) {
@@ -191,36 +249,42 @@ fn synth_frame(
     )
 }
 
+/// A pixel's exact z-depth, world point, normal turned to the camera and primitive.
+type Exact = (f64, DVec3, DVec3, u32);
+
 /// The reference obscurance at each pixel's noise-free point (NaN where none).
-fn truth_of(
-    scene: &Scene,
-    exact: &[Option<(f64, DVec3, DVec3)>],
-    o: &StreamSynthOptions,
-) -> Vec<f32> {
+fn truth_of(scene: &StreamScene, exact: &[Option<Exact>], o: &StreamSynthOptions) -> Vec<f32> {
     if o.truth_rays == 0 {
         return vec![f32::NAN; exact.len()];
     }
-    let idx: Vec<usize> = (0..exact.len()).filter(|&i| exact[i].is_some()).collect();
-    let pts: Vec<Vec3> = idx
+    let seen: Vec<(usize, Exact)> = exact
         .iter()
-        .filter_map(|&i| exact[i].map(|e| e.1.as_vec3()))
+        .enumerate()
+        .filter_map(|(i, e)| e.map(|e| (i, e)))
         .collect();
-    let nrm: Vec<Vec3> = idx
-        .iter()
-        .filter_map(|&i| exact[i].map(|e| e.2.as_vec3()))
-        .collect();
-    let mut scan = Scan::from_points("frame", pts);
-    scan.normals = Some(nrm);
-    let a = analytic_obscurance(
-        scene,
-        &scan,
-        o.truth_rays,
-        (o.truth_tmax, o.truth_falloff),
-        o.seed,
-    );
+    let falloff = (o.truth_tmax, o.truth_falloff);
+    let a = match scene {
+        StreamScene::Analytic(sc) => {
+            let pts = seen.iter().map(|(_, e)| e.1.as_vec3()).collect();
+            let mut scan = Scan::from_points("frame", pts);
+            scan.normals = Some(seen.iter().map(|(_, e)| e.2.as_vec3()).collect());
+            analytic_obscurance(sc, &scan, o.truth_rays, falloff, o.seed)
+        }
+        StreamScene::Mesh(m) => {
+            let truth: Vec<Truth> = seen
+                .iter()
+                .map(|(_, e)| Truth {
+                    p: e.1,
+                    n: e.2,
+                    prim: e.3,
+                })
+                .collect();
+            mesh_obscurance(m, &truth, o.truth_rays, falloff, o.seed)
+        }
+    };
     let mut out = vec![f32::NAN; exact.len()];
-    for (&i, v) in idx.iter().zip(a) {
-        out[i] = v;
+    for ((i, _), v) in seen.iter().zip(a) {
+        out[*i] = v;
     }
     out
 }

@@ -235,6 +235,18 @@ fn depth_png_round_trips_and_intrinsics_parse() {
     .unwrap();
     assert_eq!(frames::parse_intrinsics(j.to_str().unwrap()).unwrap(), k);
     assert!(frames::parse_intrinsics("1 2 3").is_err());
+    // The intrinsics.txt that `mvao synth --frames` writes.
+    let t = dir.path().join("intrinsics.txt");
+    std::fs::write(&t, "525 525 319.5 239.5\n").unwrap();
+    assert_eq!(frames::parse_intrinsics(t.to_str().unwrap()).unwrap(), k);
+    std::fs::write(&t, "525 525\n").unwrap();
+    let e = frames::parse_intrinsics(t.to_str().unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("intrinsics.txt") && e.contains("fx fy cx cy"),
+        "{e}"
+    );
 }
 
 #[test]
