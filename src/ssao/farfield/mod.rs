@@ -334,6 +334,8 @@ pub(crate) struct Half {
     pub(crate) cos_hi: f32,
     pub(crate) fx: Vec3A,
     pub(crate) fy: Vec3A,
+    /// A bound on how far `(v·fx, v·fy)` moves per unit of `v` (`√(|fx|² + |fy|²)`).
+    stretch: f32,
 }
 
 impl Half {
@@ -368,7 +370,27 @@ impl Half {
             cos_hi: hi.cos(),
             fx,
             fy,
+            stretch: (fx.length_squared() + fy.length_squared()).sqrt(),
         })
+    }
+
+    /// Whether any point of the sphere `sph` (centre, radius) may have a `cos γ` above `cur`
+    /// as seen from `pa`: false only when the disk it maps to lies wholly below that horizon
+    /// (with a margin for rounding).
+    #[inline]
+    pub(crate) fn may_raise(&self, sph: glam::Vec4, pa: Vec3A, cur: f32) -> bool {
+        let v = Vec3A::new(sph.x, sph.y, sph.z) - pa;
+        let (x, y) = (v.dot(self.fx), v.dot(self.fy));
+        let r = sph.w * self.stretch;
+        let d2 = x * x + y * y;
+        if !(d2 > r * r) {
+            return true;
+        }
+        let d = d2.sqrt();
+        // The disk spans the directions within δ = asin(r/d) of its centre's, at γ0 from V.
+        let (cos_g0, sin_g0, sin_d) = (y / d, x.abs() / d, r / d);
+        let cos_d = (1.0 - sin_d * sin_d).max(0.0).sqrt();
+        cos_g0 >= cos_d || cos_g0 * cos_d + sin_g0 * sin_d > cur - 1e-5
     }
 
     /// `G(γ) = −(a/4) cos 2γ + (b/2) γ − (b/4) sin 2γ`, the antiderivative of `f`.

@@ -4,7 +4,7 @@
 use super::{Half, BLOCK, NEAR};
 use crate::gbuffer::GBuffer;
 use crate::projection::{Model, Projection};
-use glam::{Vec2, Vec3, Vec3A};
+use glam::{Vec2, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
 use std::f32::consts::{PI, TAU};
 
@@ -65,6 +65,8 @@ struct Level {
     nblocks: usize,
     /// `lines × nblocks` ranges in [`Family::verts`].
     blocks: Vec<(u32, u32)>,
+    /// Per block: a sphere holding its hull vertices' points (centre, radius).
+    spheres: Vec<Vec4>,
 }
 
 impl Family {
@@ -114,6 +116,7 @@ impl Family {
                     Level {
                         nblocks,
                         blocks: Vec::with_capacity(lines * nblocks),
+                        spheres: Vec::with_capacity(lines * nblocks),
                     }
                 })
                 .collect(),
@@ -127,6 +130,7 @@ impl Family {
                     let start = fam.verts.len() as u32;
                     fam.verts.extend_from_slice(&h);
                     level.blocks.push((start, fam.verts.len() as u32));
+                    level.spheres.push(sphere(&h, &g.position));
                 }
             }
         }
@@ -233,9 +237,15 @@ impl Family {
         while d <= reach {
             let j = (i + dir * d).rem_euclid(n);
             if d > NEAR {
-                if let Some((v0, v1, span)) =
+                if let Some((v0, v1, span, sph)) =
                     self.block_at(l, j, d, dir, reach, |e| reaches(e, cur))
                 {
+                    if !half.may_raise(sph, pa, cur) {
+                        // No vertex of the block rises above the horizon so far.
+                        seen |= v1 > v0;
+                        d += span;
+                        continue;
+                    }
                     for &s in &self.verts[v0..v1] {
                         if let Some(cg) = gamma(s) {
                             seen = true;
@@ -271,7 +281,8 @@ impl Family {
     /// in direction `dir`) enters first, that is no longer than `d` (blocks grow with the
     /// distance, so a half-plane reads a number of them logarithmic in the line's length),
     /// ends within `reach` and whose last sample `e` passes `within(e)`: the range of its hull
-    /// vertices and its length. `None` when no block qualifies (the sample is read alone).
+    /// vertices, its length and the sphere holding them. `None` when no block qualifies (the
+    /// sample is read alone).
     #[inline]
     fn block_at(
         &self,
@@ -281,7 +292,7 @@ impl Family {
         dir: i64,
         reach: i64,
         within: impl Fn(i64) -> bool,
-    ) -> Option<(usize, usize, i64)> {
+    ) -> Option<(usize, usize, i64, Vec4)> {
         let n = self.len as i64;
         for (k, level) in self.levels.iter().enumerate().rev() {
             let size = BLOCK << k;
@@ -299,8 +310,9 @@ impl Family {
             // A raise only brings samples nearer reach, so the check on the last sample
             // with the horizon before the block holds for all of them.
             if first && last <= reach && within(last) {
-                let (v0, v1) = level.blocks[l * level.nblocks + (start / size) as usize];
-                return Some((v0 as usize, v1 as usize, span));
+                let b = l * level.nblocks + (start / size) as usize;
+                let (v0, v1) = level.blocks[b];
+                return Some((v0 as usize, v1 as usize, span, level.spheres[b]));
             }
         }
         None
@@ -462,4 +474,26 @@ fn hull(block: &[u32], m: Vec3A, pos: &[Vec3]) -> Vec<u32> {
         out.pop();
     }
     out.iter().map(|p| p.2).collect()
+}
+
+/// A sphere holding the points of `verts` (centre of their bounding box, the largest distance
+/// from it), widened for f32 rounding so that a test against it never drops a vertex.
+fn sphere(verts: &[u32], pos: &[Vec3]) -> Vec4 {
+    let mut lo = Vec3A::splat(f32::INFINITY);
+    let mut hi = Vec3A::splat(f32::NEG_INFINITY);
+    for &s in verts {
+        let p = Vec3A::from(pos[s as usize]);
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    if verts.is_empty() || !(lo.is_finite() && hi.is_finite()) {
+        // Never culled.
+        return Vec4::new(0.0, 0.0, 0.0, f32::INFINITY);
+    }
+    let c = (lo + hi) * 0.5;
+    let r = verts
+        .iter()
+        .map(|&s| (Vec3A::from(pos[s as usize]) - c).length())
+        .fold(0.0f32, f32::max);
+    c.extend(r * (1.0 + 1e-4) + 1e-6 * c.length())
 }
