@@ -11,7 +11,7 @@ use crate::eval::Metrics;
 use crate::io::dataset::{Dataset, PlaceOptions};
 use crate::io::reference::{check_reference_matches, load_reference};
 use crate::merge::union::Occlusion;
-use crate::pipeline::compute;
+use crate::pipeline::{compute, Computed};
 use crate::plot::{self, PlotPoint};
 use crate::progress::Silent;
 use crate::ssao::Estimator;
@@ -132,6 +132,29 @@ pub struct Row {
     pub metrics: Metrics,
 }
 
+impl Row {
+    /// The row of `method` for `setting` from a computation `c` over `points` points.
+    fn of(
+        method: &str,
+        setting: Setting,
+        neighbors: u32,
+        c: &Computed,
+        (points, wall_s): (usize, f64),
+        metrics: Metrics,
+    ) -> Row {
+        Row {
+            method: method.into(),
+            setting,
+            neighbors,
+            radius: c.ssao.radius,
+            tmax: c.ssao.tmax,
+            points,
+            wall_s,
+            metrics,
+        }
+    }
+}
+
 fn estimator_name(e: Estimator) -> &'static str {
     match e {
         Estimator::Paper => "paper",
@@ -177,27 +200,11 @@ pub fn run(cfg: &SweepConfig, progress: &dyn Fn(&str)) -> Result<Vec<Row>> {
             let ao: Vec<Vec<f32>> = c.scans.iter().map(|r| r.ao.clone()).collect();
             let acc = evaluate(&cfg.reference, &names, Some(&ssao), &ao, &refs);
             if k == 0 {
-                rows.push(Row {
-                    method: "ssao".into(),
-                    setting: st.clone(),
-                    neighbors: 0,
-                    radius: c.ssao.radius,
-                    tmax: c.ssao.tmax,
-                    points,
-                    wall_s: wall - c.merge_s,
-                    metrics: acc.ssao.unwrap_or_default(),
-                });
+                let single = acc.ssao.unwrap_or_default();
+                let time = (points, wall - c.merge_s);
+                rows.push(Row::of("ssao", st.clone(), 0, &c, time, single));
             }
-            let row = Row {
-                method: "mvao".into(),
-                setting: st.clone(),
-                neighbors: n,
-                radius: c.ssao.radius,
-                tmax: c.ssao.tmax,
-                points,
-                wall_s: wall,
-                metrics: acc.result,
-            };
+            let row = Row::of("mvao", st.clone(), n, &c, (points, wall), acc.result);
             progress(&format!(
                 "{} {} N={n}: {:.2} s, {}",
                 estimator_name(st.estimator),
@@ -222,19 +229,11 @@ pub fn run(cfg: &SweepConfig, progress: &dyn Fn(&str)) -> Result<Vec<Row>> {
                 let wall = t0.elapsed().as_secs_f64();
                 let ao: Vec<Vec<f32>> = c.scans.iter().map(|r| r.ao.clone()).collect();
                 let acc = evaluate(&cfg.reference, &names, None, &ao, &refs);
-                let row = Row {
-                    method: "union".into(),
-                    setting: Setting {
-                        samples: rays,
-                        ..st.clone()
-                    },
-                    neighbors: 0,
-                    radius: c.ssao.radius,
-                    tmax: c.ssao.tmax,
-                    points,
-                    wall_s: wall,
-                    metrics: acc.result,
+                let setting = Setting {
+                    samples: rays,
+                    ..st.clone()
                 };
+                let row = Row::of("union", setting, 0, &c, (points, wall), acc.result);
                 progress(&format!(
                     "union {} {rays} rays: {wall:.2} s, {}",
                     budget(st),

@@ -67,13 +67,7 @@ fn bent_normals_follow_the_output_frame() {
         extra: Vec::new(),
     };
     mvao::io::las::write_table_las(&table, &las, false).unwrap();
-    let rows: String = (0..4)
-        .map(|r| {
-            let v = pose.row(r);
-            format!("{:?} {:?} {:?} {:?}\n", v.x, v.y, v.z, v.w)
-        })
-        .collect();
-    std::fs::write(las.with_extension("txt"), rows).unwrap();
+    write_pose_sidecar(&las, pose);
 
     let ol = d.path().join("ol");
     let r = merge(&ol, &las, &[]);

@@ -291,13 +291,7 @@ fn las_in_world_coordinates_with_a_scanner_pose_round_trips() {
     );
 
     // With the scanner pose as a sidecar.
-    let rows: String = (0..4)
-        .map(|r| {
-            let v = pose.row(r);
-            format!("{:?} {:?} {:?} {:?}\n", v.x, v.y, v.z, v.w)
-        })
-        .collect();
-    std::fs::write(las.with_extension("txt"), rows).unwrap();
+    write_pose_sidecar(&las, pose);
     let o = d.path().join("o");
     mvao_ok(&[
         "merge",

@@ -161,21 +161,9 @@ pub fn ao_properties(ply: &PlyFile, path: &Path) -> (Vec<String>, Vec<String>) {
 /// Writes `ply` with per-vertex AO (one value per vertex, all finite; under the names of
 /// [`ao_properties`]) and colours to `path`. Non-finite values of the input's float
 /// properties are written as 0 ([`nonfinite_properties`]). Returns what the user should know
-/// about the output.
-pub fn write_result_ply(
-    ply: &PlyFile,
-    ao: &[f32],
-    gamma: f32,
-    color: ColorMode,
-    comment: &str,
-    path: &Path,
-) -> Result<Vec<String>> {
-    write_result_ply_with(ply, ao, &[], gamma, color, comment, path)
-}
-
-/// [`write_result_ply`] with further float vertex columns (`extra`: name and one value per
+/// about the output. `extra` are further float vertex columns (name and one value per
 /// vertex), which replace the input's columns of the same name.
-pub fn write_result_ply_with(
+pub fn write_result_ply(
     ply: &PlyFile,
     ao: &[f32],
     extra: &[(&str, Vec<f64>)],
@@ -291,7 +279,7 @@ mod tests {
         let ao = [0.5f32, 1.0];
         let get = |mode: ColorMode| {
             let p = dir.path().join(format!("{mode:?}.ply"));
-            write_result_ply(&ply, &ao, 1.0, mode, "test", &p).unwrap();
+            write_result_ply(&ply, &ao, &[], 1.0, mode, "test", &p).unwrap();
             let o = PlyFile::from_path(&p).unwrap();
             for name in ["ao", CLOUDCOMPARE_AO, MESHLAB_AO] {
                 assert_eq!(o.scalar_column("vertex", name).unwrap(), vec![0.5, 1.0]);
@@ -313,7 +301,7 @@ mod tests {
         )
         .unwrap();
         let p = dir.path().join("bare.ply");
-        write_result_ply(&bare, &ao, 2.0, ColorMode::Keep, "test", &p).unwrap();
+        write_result_ply(&bare, &ao, &[], 2.0, ColorMode::Keep, "test", &p).unwrap();
         let o = PlyFile::from_path(&p).unwrap();
         // gamma 2: 0.5^(1/2) = 0.7071 → 180
         assert_eq!(
@@ -322,7 +310,9 @@ mod tests {
         );
         // Non-finite AO is refused, and nothing is written.
         let q = dir.path().join("nan.ply");
-        assert!(write_result_ply(&ply, &[f32::NAN, 1.0], 1.0, ColorMode::Keep, "t", &q).is_err());
+        assert!(
+            write_result_ply(&ply, &[f32::NAN, 1.0], &[], 1.0, ColorMode::Keep, "t", &q).is_err()
+        );
         assert!(!q.exists());
     }
 
@@ -345,7 +335,7 @@ mod tests {
         let ao = [0.5f32, 1.0];
         let run = |ply: &PlyFile, mode: ColorMode, name: &str| {
             let p = dir.path().join(name);
-            write_result_ply(ply, &ao, 1.0, mode, "test", &p).unwrap();
+            write_result_ply(ply, &ao, &[], 1.0, mode, "test", &p).unwrap();
             PlyFile::from_path(&p).unwrap()
         };
         let o = run(
@@ -418,7 +408,7 @@ mod tests {
         )
         .unwrap();
         let p = dir.path().join("own.ply");
-        let notes = write_result_ply(&own, &ao, 1.0, ColorMode::Keep, "t", &p).unwrap();
+        let notes = write_result_ply(&own, &ao, &[], 1.0, ColorMode::Keep, "t", &p).unwrap();
         assert_eq!(notes.len(), 1, "{notes:?}");
         assert!(notes[0].contains("own.ply") && notes[0].contains("quality"));
         let o = PlyFile::from_path(&p).unwrap();
@@ -432,7 +422,7 @@ mod tests {
         );
         // Its output run again: the input's quality still stays.
         let q = dir.path().join("again.ply");
-        let notes = write_result_ply(&o, &[0.5, 0.5], 1.0, ColorMode::Keep, "t", &q).unwrap();
+        let notes = write_result_ply(&o, &[0.5, 0.5], &[], 1.0, ColorMode::Keep, "t", &q).unwrap();
         assert_eq!(notes.len(), 1);
         let o2 = PlyFile::from_path(&q).unwrap();
         assert_eq!(
@@ -451,13 +441,15 @@ mod tests {
         )
         .unwrap();
         let r1 = dir.path().join("r1.ply");
-        assert!(write_result_ply(&bare, &ao, 1.0, ColorMode::Keep, "t", &r1)
-            .unwrap()
-            .is_empty());
+        assert!(
+            write_result_ply(&bare, &ao, &[], 1.0, ColorMode::Keep, "t", &r1)
+                .unwrap()
+                .is_empty()
+        );
         let first = PlyFile::from_path(&r1).unwrap();
         let r2 = dir.path().join("r2.ply");
         assert!(
-            write_result_ply(&first, &[1.0, 0.0], 1.0, ColorMode::Keep, "t", &r2)
+            write_result_ply(&first, &[1.0, 0.0], &[], 1.0, ColorMode::Keep, "t", &r2)
                 .unwrap()
                 .is_empty()
         );

@@ -5,7 +5,7 @@
 
 use super::dataset::Dataset;
 use super::output::{
-    ao_comment, colour_step, grey, write_result_ply_with, ColorMode, CLOUDCOMPARE_AO, MESHLAB_AO,
+    ao_comment, colour_step, grey, write_result_ply, ColorMode, CLOUDCOMPARE_AO, MESHLAB_AO,
 };
 use super::ply::{round, PlyFile, PropertyKind, ScalarType};
 use super::raw::{PointTable, RawGrid};
@@ -221,7 +221,7 @@ pub fn write(
                         extra.push((name, full));
                     }
                 }
-                return write_result_ply_with(
+                return write_result_ply(
                     ply,
                     &per_vertex,
                     &extra,

@@ -153,3 +153,14 @@ pub fn dome(n: usize) -> Vec<[f64; 3]> {
         })
         .collect()
 }
+
+/// Writes `pose` (scan → world) as the sidecar matrix beside `scan` (`scan.txt`, four rows).
+pub fn write_pose_sidecar(scan: &Path, pose: glam::DMat4) {
+    let rows: String = (0..4)
+        .map(|r| {
+            let v = pose.row(r);
+            format!("{:?} {:?} {:?} {:?}\n", v.x, v.y, v.z, v.w)
+        })
+        .collect();
+    std::fs::write(scan.with_extension("txt"), rows).unwrap();
+}
