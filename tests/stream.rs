@@ -2,6 +2,8 @@
 //! grid beats single frames, history does not depend much on the frame order, and the
 //! settings the speed figures use stay close to full resolution. See issue 33.
 
+mod common;
+
 use glam::DMat4;
 use mvao::stream::synth::{room_trajectory, synth_stream, StreamSynthOptions, SynthStream};
 use mvao::stream::{Integrator, StreamParams};
@@ -286,12 +288,7 @@ fn issue_33_a_mesh_scene_stream_of_exact_depth() {
 #[test]
 fn issue_33_synth_writes_mesh_streams() {
     let d = tempfile::tempdir().unwrap();
-    let run = |args: &[&str]| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_mvao"))
-            .args(args)
-            .output()
-            .unwrap()
-    };
+    let run = common::mvao;
     let dir = d.path().join("relief");
     let ds = dir.to_str().unwrap();
     let r = run(&[
