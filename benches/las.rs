@@ -56,7 +56,7 @@ fn main() {
             "big.out.las"
         });
         let t = std::time::Instant::now();
-        write_las(&input, &ao, 1.0, ColorMode::Modulate, &out, compress).expect("bench I/O");
+        write_las(&input, &ao, &[], 1.0, ColorMode::Modulate, &out, compress).expect("bench I/O");
         println!(
             "write_las compress={compress}: {:?}, {} bytes",
             t.elapsed(),

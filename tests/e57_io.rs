@@ -258,7 +258,7 @@ fn result_round_trip_pump() {
     let gamma = 2.2;
     for mode in [ColorMode::Modulate, ColorMode::Replace, ColorMode::Keep] {
         let out = dir.path().join(format!("pump-{mode:?}.e57"));
-        write_e57(&inp, &ao, gamma, mode, &out).unwrap();
+        write_e57(&inp, &ao, &[], gamma, mode, &out).unwrap();
         let back = E57Input::from_path(&out).unwrap();
         let b = &back.scans[0];
         assert_eq!(b.name, "pumpA");
@@ -312,7 +312,7 @@ fn result_round_trip_pump() {
             .iter()
             .any(|e| e.namespace == MVAO_NAMESPACE));
         let again = dir.path().join("again.e57");
-        write_e57(&inp, &ao, gamma, mode, &again).unwrap();
+        write_e57(&inp, &ao, &[], gamma, mode, &again).unwrap();
         assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&out).unwrap());
     }
     // Writing the result of a result replaces mvao:ao instead of adding a second one.
@@ -320,7 +320,7 @@ fn result_round_trip_pump() {
     let r1 = E57Input::from_path(&first).unwrap();
     let ao2 = vec![ao_pattern(n, 50)];
     let second = dir.path().join("second.e57");
-    write_e57(&r1, &ao2, 1.0, ColorMode::Keep, &second).unwrap();
+    write_e57(&r1, &ao2, &[], 1.0, ColorMode::Keep, &second).unwrap();
     let r2 = E57Input::from_path(&second).unwrap();
     let count = r2.scans[0]
         .descriptor
@@ -352,7 +352,7 @@ fn result_round_trip_multi_scan_with_invalid_records() {
         .map(|(k, s)| ao_pattern(s.len(), k))
         .collect();
     let out = dir.path().join("site.mvao.e57");
-    write_e57(&inp, &ao, 1.0, ColorMode::Modulate, &out).unwrap();
+    write_e57(&inp, &ao, &[], 1.0, ColorMode::Modulate, &out).unwrap();
     let back = E57Input::from_path(&out).unwrap();
     assert_eq!(back.scans.len(), 3);
     for ((a, b), want_ao) in inp.scans.iter().zip(&back.scans).zip(&ao) {
@@ -403,14 +403,14 @@ fn bad_ao_is_refused_and_nothing_written() {
     let out = dir.path().join("out.e57");
     let mut ao = vec![vec![0.5f32; inp.scans[0].len()]];
     ao[0][3] = f32::NAN;
-    assert!(write_e57(&inp, &ao, 1.0, ColorMode::Keep, &out).is_err());
-    assert!(write_e57(&inp, &[vec![0.5; 3]], 1.0, ColorMode::Keep, &out).is_err());
-    assert!(write_e57(&inp, &[], 1.0, ColorMode::Keep, &out).is_err());
+    assert!(write_e57(&inp, &ao, &[], 1.0, ColorMode::Keep, &out).is_err());
+    assert!(write_e57(&inp, &[vec![0.5; 3]], &[], 1.0, ColorMode::Keep, &out).is_err());
+    assert!(write_e57(&inp, &[], &[], 1.0, ColorMode::Keep, &out).is_err());
     assert!(!out.exists());
     // A missing directory: an I/O error naming the target, no temporary left behind.
     let missing = dir.path().join("no/such/dir/out.e57");
     let ao = vec![vec![0.5f32; inp.scans[0].len()]];
-    let e = write_e57(&inp, &ao, 1.0, ColorMode::Keep, &missing).unwrap_err();
+    let e = write_e57(&inp, &ao, &[], 1.0, ColorMode::Keep, &missing).unwrap_err();
     assert!(matches!(e, Error::Io { .. }), "{e}");
 }
 

@@ -32,7 +32,7 @@ fn round_trip(dir: &Path, spec: &Spec, mode: ColorMode, gamma: f32, out_ext: &st
     assert_eq!(input.is_compressed(), spec.compress);
     let ao = ao_values(spec.n);
     let out = dir.join(format!("{tag}.out.{out_ext}"));
-    write_las(&input, &ao, gamma, mode, &out, out_ext == "laz").unwrap();
+    write_las(&input, &ao, &[], gamma, mode, &out, out_ext == "laz").unwrap();
 
     let (h, got) = read_back(&out);
     let in_id = spec.format;
@@ -244,7 +244,7 @@ fn rerun_overwrites_ao() {
     let len = input.record_len();
     let ao2: Vec<f32> = (0..spec.n).map(|k| (k % 7) as f32 / 6.0).collect();
     let second = dir.path().join("second.las");
-    write_las(&input, &ao2, 1.0, ColorMode::Keep, &second, false).unwrap();
+    write_las(&input, &ao2, &[], 1.0, ColorMode::Keep, &second, false).unwrap();
     let again = LasInput::from_path(&second).unwrap();
     assert_eq!(again.record_len(), len, "no second ao dimension");
     assert_eq!(again.point_format(), 7);
@@ -283,7 +283,7 @@ fn laz_round_trips() {
         assert!(input.is_compressed());
         let plain = dir.path().join(format!("plain_{f}.las"));
         let ao = read_ao(&out).unwrap();
-        write_las(&input, &ao, 1.0, ColorMode::Keep, &plain, false).unwrap();
+        write_las(&input, &ao, &[], 1.0, ColorMode::Keep, &plain, false).unwrap();
         let back = LasInput::from_path(&plain).unwrap();
         assert!(!back.is_compressed());
         assert_eq!(back.records(), input.records());
@@ -327,6 +327,7 @@ fn internal_waveform_packets_stay_addressable() {
     write_las(
         &input,
         &ao_values(spec.n),
+        &[],
         1.0,
         ColorMode::Modulate,
         &out,
@@ -372,6 +373,7 @@ fn las13_waveform_packets_move_into_a_las14_evlr() {
     write_las(
         &input,
         &ao_values(spec.n),
+        &[],
         1.0,
         ColorMode::Keep,
         &out,
@@ -395,7 +397,16 @@ fn legacy_counts_are_zero_for_extended_formats() {
     make_las(&inp, &Spec::new((1, 4), 6));
     let out = dir.path().join("ext.out.las");
     let input = LasInput::from_path(&inp).unwrap();
-    write_las(&input, &ao_values(257), 1.0, ColorMode::Keep, &out, false).unwrap();
+    write_las(
+        &input,
+        &ao_values(257),
+        &[],
+        1.0,
+        ColorMode::Keep,
+        &out,
+        false,
+    )
+    .unwrap();
     let o = std::fs::read(&out).unwrap();
     assert!(o[107..131].iter().all(|&b| b == 0));
     assert_eq!(header_u64(&o, 247), 257);
@@ -625,6 +636,7 @@ fn return_numbers_above_five_move_to_las14() {
     write_las(
         &input,
         &ao_values(spec.n),
+        &[],
         1.0,
         ColorMode::Modulate,
         &out,
@@ -703,16 +715,17 @@ fn refused_writes_leave_nothing() {
     make_las(&inp, &Spec::new((1, 2), 1));
     let input = LasInput::from_path(&inp).unwrap();
     let out = dir.path().join("out.las");
-    let short = write_las(&input, &[0.5; 3], 1.0, ColorMode::Keep, &out, false);
+    let short = write_las(&input, &[0.5; 3], &[], 1.0, ColorMode::Keep, &out, false);
     assert!(matches!(short, Err(Error::Param(_))));
     let mut ao = ao_values(257);
     ao[5] = f32::NAN;
-    let nan = write_las(&input, &ao, 1.0, ColorMode::Keep, &out, false);
+    let nan = write_las(&input, &ao, &[], 1.0, ColorMode::Keep, &out, false);
     assert!(matches!(nan, Err(Error::Param(_))));
     let missing = dir.path().join("no/such/dir/out.las");
     let r = write_las(
         &input,
         &ao_values(257),
+        &[],
         1.0,
         ColorMode::Keep,
         &missing,
@@ -832,7 +845,7 @@ fn empty_files_round_trip() {
     assert!(input.is_empty());
     assert!(input.raw_scan("empty").xyz.is_empty());
     let out = dir.path().join("empty.out.las");
-    write_las(&input, &[], 1.0, ColorMode::Modulate, &out, false).unwrap();
+    write_las(&input, &[], &[], 1.0, ColorMode::Modulate, &out, false).unwrap();
     assert_eq!(read_ao(&out).unwrap(), Vec::<f32>::new());
     // A table whose every point lacks a return.
     let table = PointTable {

@@ -96,6 +96,20 @@ pub fn nonfinite_properties(ply: &PlyFile) -> Vec<(String, usize)> {
         .collect()
 }
 
+/// A float column a result written back into its own LAS or E57 layout carries beside `ao`
+/// (one finite value per record).
+#[derive(Clone, Copy)]
+pub struct ExtraFloat<'a> {
+    /// The column's name.
+    pub name: &'a str,
+    /// What the column holds, for the format's description field (at most 32 bytes in LAS).
+    pub description: &'a str,
+    /// The declared (minimum, maximum).
+    pub range: (f64, f64),
+    /// One value per record.
+    pub values: &'a [f32],
+}
+
 /// The vertex property CloudCompare loads as a scalar field without asking: its PLY reader
 /// takes a vertex property whose name contains `scal` as a scalar field and names it after
 /// the `scalar_` prefix, so this one appears as `ao`. A plain `ao` is left out of its list.

@@ -5,7 +5,8 @@
 
 use super::dataset::Dataset;
 use super::output::{
-    ao_comment, colour_step, grey, write_result_ply, ColorMode, CLOUDCOMPARE_AO, MESHLAB_AO,
+    ao_comment, colour_step, grey, write_result_ply, ColorMode, ExtraFloat, CLOUDCOMPARE_AO,
+    MESHLAB_AO,
 };
 use super::ply::{round, PlyFile, PropertyKind, ScalarType};
 use super::raw::{PointTable, RawGrid};
@@ -127,12 +128,6 @@ pub fn plan_files(
 /// The names of the bent normal's columns.
 pub const BENT_COLUMNS: [&str; 3] = ["bnx", "bny", "bnz"];
 
-/// Whether an output can carry bent normals: PLY always, other formats when written as a table
-/// (LAS and E57 written back in their own format keep their records' layout).
-pub fn carries_bent_normals(unit: &OutputUnit) -> bool {
-    unit.format == Format::Ply || !unit.same_family
-}
-
 /// The bent normals of scan `i`'s valid points as the columns [`BENT_COLUMNS`], turned from
 /// the scan's local frame into the frame that `to_world` leaves (identity: world) and
 /// normalised; a point whose every ray was blocked keeps a zero vector.
@@ -158,17 +153,6 @@ pub fn write(
     opts: WriteOptions,
     comment: &str,
 ) -> Result<Vec<String>> {
-    let has_bent = unit
-        .scans
-        .iter()
-        .any(|&i| bent.get(i).is_some_and(Option::is_some));
-    if has_bent && !carries_bent_normals(unit) {
-        return Err(Error::Param(format!(
-            "{}: bent normals are not written into LAS or E57 results written back in their \
-             own format; add --format ply",
-            unit.path.display()
-        )));
-    }
     for &i in &unit.scans {
         if ao[i].iter().any(|a| !a.is_finite()) {
             return Err(Error::Param(format!(
@@ -212,11 +196,7 @@ pub fn write(
                         let full = if s.skipped_nonfinite > 0 {
                             v
                         } else {
-                            let mut full = vec![0.0f64; s.vertex_count];
-                            for (k, &vi) in s.source_index.iter().enumerate() {
-                                full[vi as usize] = v[k];
-                            }
-                            full
+                            per_record(ds, i, &v, 0.0)
                         };
                         extra.push((name, full));
                     }
@@ -232,12 +212,18 @@ pub fn write(
                 );
             }
             Container::E57(e) => {
-                let per_record: Vec<Vec<f32>> = unit
+                let records: Vec<Vec<f32>> = unit
                     .scans
                     .iter()
-                    .map(|&i| per_record(ds, i, &ao[i]))
+                    .map(|&i| per_record(ds, i, &ao[i], 1.0))
                     .collect();
-                super::e57::write_e57(e, &per_record, opts.gamma, opts.color, &unit.path)
+                let bent_records: Vec<Option<[Vec<f32>; 3]>> = unit
+                    .scans
+                    .iter()
+                    .map(|&i| bent_per_record(ds, i, bent))
+                    .collect();
+                let extra: Vec<Vec<ExtraFloat>> = bent_records.iter().map(bent_floats).collect();
+                super::e57::write_e57(e, &records, &extra, opts.gamma, opts.color, &unit.path)
             }
             Container::Ptx(_) => Err(Error::Param(format!(
                 "{}: PTX is read, not written",
@@ -245,9 +231,11 @@ pub fn write(
             ))),
             Container::Las(l) => {
                 let i = unit.scans[0];
+                let bent_records = bent_per_record(ds, i, bent);
                 super::las::write_las(
                     l,
-                    &per_record(ds, i, &ao[i]),
+                    &per_record(ds, i, &ao[i], 1.0),
+                    &bent_floats(&bent_records),
                     opts.gamma,
                     opts.color,
                     &unit.path,
@@ -291,7 +279,7 @@ pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Resul
     let s = &ds.scans[i];
     let (fi, k) = ds.origin[i];
     let file = &ds.files[fi];
-    let rec_ao = per_record(ds, i, ao);
+    let rec_ao = per_record(ds, i, ao, 1.0);
     let per_record_table = |xyz: Vec<[f64; 3]>, attrs: Attributes| {
         let (rgb, intensity, extra) = attrs;
         PointTable {
@@ -338,13 +326,47 @@ pub fn table_of(ds: &Dataset, i: usize, ao: &[f32], opts: WriteOptions) -> Resul
 }
 
 /// AO per record of scan `i` (1 for records without a valid point).
-fn per_record(ds: &Dataset, i: usize, ao: &[f32]) -> Vec<f32> {
+fn per_record<T: Copy>(ds: &Dataset, i: usize, values: &[T], fill: T) -> Vec<T> {
     let s = &ds.scans[i];
-    let mut v = vec![1.0f32; s.vertex_count];
+    let mut v = vec![fill; s.vertex_count];
     for (k, &r) in s.source_index.iter().enumerate() {
-        v[r as usize] = ao[k];
+        v[r as usize] = values[k];
     }
     v
+}
+
+/// Scan `i`'s bent normals (when it has them) per record of its file, in the frame of the
+/// file's coordinates; a record without a valid point gets a zero vector.
+fn bent_per_record(ds: &Dataset, i: usize, bent: &[Option<Vec<Vec3>>]) -> Option<[Vec<f32>; 3]> {
+    let b = bent.get(i).and_then(Option::as_ref)?;
+    let cols = bent_columns(ds, i, b, ds.file_to_world[i]);
+    Some(cols.map(|c| {
+        let c: Vec<f32> = c.iter().map(|&x| x as f32).collect();
+        per_record(ds, i, &c, 0.0)
+    }))
+}
+
+/// The bent-normal columns as further float columns of a LAS or E57 written back.
+fn bent_floats(cols: &Option<[Vec<f32>; 3]>) -> Vec<ExtraFloat<'_>> {
+    const DESCRIPTIONS: [&str; 3] = [
+        "bent normal x, file frame",
+        "bent normal y, file frame",
+        "bent normal z, file frame",
+    ];
+    let Some(cols) = cols else {
+        return Vec::new();
+    };
+    BENT_COLUMNS
+        .iter()
+        .zip(DESCRIPTIONS)
+        .zip(cols)
+        .map(|((&name, description), values)| ExtraFloat {
+            name,
+            description,
+            range: (-1.0, 1.0),
+            values,
+        })
+        .collect()
 }
 
 /// The rows of a per-record table that hold valid points, in world coordinates (`m`: the

@@ -92,16 +92,6 @@ pub fn check_outputs(cfg: &Config, cat: &[CatalogScan]) -> Result<Vec<PathBuf>> 
     }
     let selected = |n: &str| cfg.only.is_empty() || cfg.only.iter().any(|o| o == n);
     let units = results::plan_files(&files, cfg.format, &cfg.out_dir)?;
-    if cfg.compute.bent_normals {
-        if let Some(u) = units.iter().find(|u| !results::carries_bent_normals(u)) {
-            return Err(Error::Param(format!(
-                "{}: --bent-normals cannot be written into a .{} result written back in its \
-                 own format; add --format ply",
-                u.path.display(),
-                u.format.extension()
-            )));
-        }
-    }
     let mut outputs: Vec<PathBuf> = units
         .iter()
         .filter(|u| u.scans.iter().any(|&i| selected(&cat[i].name)))

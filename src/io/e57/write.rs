@@ -2,6 +2,7 @@
 
 use super::read::*;
 use super::*;
+use crate::io::output::ExtraFloat;
 
 impl E57Scan {
     /// The Cartesian coordinates and `cartesianInvalidState` written for record `k`: valid
@@ -46,6 +47,7 @@ impl E57Scan {
     pub(super) fn result_cloud<'a>(
         &'a self,
         ao: &[f32],
+        extra: &[ExtraFloat],
         gamma: f32,
         color: ColorMode,
         extensions: &[Extension],
@@ -85,7 +87,8 @@ impl E57Scan {
                 | RecordName::ColorBlue
                 | RecordName::IsColorInvalid => replace_colour,
                 RecordName::Unknown { namespace, name } => {
-                    (namespace == MVAO_NAMESPACE && name == AO_ATTRIBUTE) || !declared(namespace)
+                    let ours = name == AO_ATTRIBUTE || extra.iter().any(|e| e.name == name);
+                    (namespace == MVAO_NAMESPACE && ours) || !declared(namespace)
                 }
                 _ => false,
             };
@@ -112,6 +115,20 @@ impl E57Scan {
             }
         }
         records.push((ao_record(), Cow::Owned(Column::F32(ao.to_vec()))));
+        for e in extra {
+            let (lo, hi) = e.range;
+            let record = Record {
+                name: RecordName::Unknown {
+                    namespace: MVAO_NAMESPACE.into(),
+                    name: e.name.into(),
+                },
+                data_type: RecordDataType::Single {
+                    min: Some(lo as f32),
+                    max: Some(hi as f32),
+                },
+            };
+            records.push((record, Cow::Owned(Column::F32(e.values.to_vec()))));
+        }
 
         let d = &self.descriptor;
         let intensity_limits = find(proto, &RecordName::Intensity).and_then(|i| {
@@ -426,11 +443,13 @@ pub(super) fn output_extensions(input: &[Extension]) -> Vec<Extension> {
 }
 
 /// Writes the result of `input`: every scan with its AO (`ao[k]` has one value per record of
-/// scan `k`, finite), grey colours `ao^(1/gamma)` treated by `color`, to `out`, atomically.
-/// See the module documentation for what is kept.
+/// scan `k`, finite) and the float columns `extra[k]` (none when `extra` is empty) as `mvao:`
+/// attributes of their names, grey colours `ao^(1/gamma)` treated by `color`, to `out`,
+/// atomically. See the module documentation for what is kept.
 pub fn write_e57(
     input: &E57Input,
     ao: &[Vec<f32>],
+    extra: &[Vec<ExtraFloat>],
     gamma: f32,
     color: ColorMode,
     out: &Path,
@@ -443,15 +462,29 @@ pub fn write_e57(
             input.scans.len()
         )));
     }
-    for (s, a) in input.scans.iter().zip(ao) {
+    if !extra.is_empty() && extra.len() != ao.len() {
+        return Err(Error::Param(format!(
+            "{}: further columns for {} of {} scans (internal error)",
+            out.display(),
+            extra.len(),
+            ao.len()
+        )));
+    }
+    let none = Vec::new();
+    let extra_of = |k: usize| extra.get(k).unwrap_or(&none);
+    for (k, (s, a)) in input.scans.iter().zip(ao).enumerate() {
         check_ao(out, &s.name, a, s.len())?;
+        for e in extra_of(k) {
+            check_ao(out, &s.name, e.values, s.len())?;
+        }
     }
     let extensions = output_extensions(&input.extensions);
     let clouds: Vec<CloudOut> = input
         .scans
         .iter()
         .zip(ao)
-        .map(|(s, a)| s.result_cloud(a, gamma, color, &extensions))
+        .enumerate()
+        .map(|(k, (s, a))| s.result_cloud(a, extra_of(k), gamma, color, &extensions))
         .collect();
     write_clouds(
         out,

@@ -4,8 +4,8 @@
 //! them: header fields, VLRs, every EVLR, and the extra-bytes descriptions. A result written
 //! with [`write_las`] copies each record byte for byte (coordinates stay the same scaled
 //! integers under the same scale and offset), adds or recolours RGB, and stores the AO as an
-//! `ao` extra-bytes dimension (float, described in the LAS 1.4 extra-bytes VLR) so CloudCompare,
-//! PDAL and laspy show it as a scalar field.
+//! `ao` extra-bytes dimension (float, described in the LAS 1.4 extra-bytes VLR; bent normals as
+//! `bnx bny bnz` beside it) so CloudCompare, PDAL and laspy show it as a scalar field.
 //!
 //! Output version: the input's when it can hold the output point format and the EVLRs,
 //! otherwise 1.4. A format without colour becomes its colour sibling (0→2, 1→3, 4→5, 6→7,

@@ -3,6 +3,7 @@
 
 use super::read::is_extra_bytes_vlr;
 use super::*;
+use crate::io::output::ExtraFloat;
 
 /// What happens to RGB in a record.
 #[derive(Clone, Copy)]
@@ -17,27 +18,31 @@ pub(super) enum Paint {
     Modulate,
 }
 
-/// Storage type of the `ao` dimension.
+/// Storage type of a float dimension.
 #[derive(Clone, Copy, PartialEq)]
-pub(super) enum AoType {
+pub(super) enum FloatType {
     F32,
     F64,
 }
 
 /// Writes `input`'s points with every original field unchanged, plus the AO (one finite value
-/// per point) as an `ao` float extra-bytes dimension and RGB by `color` (grey `ao^(1/gamma)`
-/// scaled to 16 bits; formats without colour gain it). An existing `ao` dimension is
-/// overwritten. The header keeps scale, offset, VLRs, EVLRs and system identifier; the
+/// per point) as an `ao` float extra-bytes dimension, each of `extra` as a float dimension of
+/// its name, and RGB by `color` (grey `ao^(1/gamma)` scaled to 16 bits; formats without colour
+/// gain it). An existing float dimension of one of those names is overwritten. The header keeps scale, offset, VLRs, EVLRs and system identifier; the
 /// generating software becomes `mvao <version>`. `compress` writes LAZ. Atomic.
 pub fn write_las(
     input: &LasInput,
     ao: &[f32],
+    extra: &[ExtraFloat],
     gamma: f32,
     color: ColorMode,
     out: &Path,
     compress: bool,
 ) -> Result<()> {
     check_ao(ao, input.len(), out)?;
+    for e in extra {
+        check_ao(e.values, input.len(), out)?;
+    }
     check_compress(compress, out)?;
     let out_id = match input.format_id {
         0 => 2,
@@ -72,8 +77,16 @@ pub fn write_las(
     };
     let mut vlrs = input.builder.vlrs.clone();
     let mut evlrs = input.builder.evlrs.clone();
-    let (ao_at, ao_type, out_extra) =
-        ao_layout(input, in_extra, insert_len, out_std, &mut vlrs, &mut evlrs)?;
+    let mut dims = vec![ExtraFloat {
+        name: AO_NAME,
+        description: AO_DESCRIPTION,
+        range: (0.0, 1.0),
+        values: ao,
+    }];
+    dims.extend_from_slice(extra);
+    let (slots, out_extra) = float_layout(
+        input, &dims, in_extra, insert_len, out_std, &mut vlrs, &mut evlrs,
+    )?;
     let mut format =
         Format::new(out_id).map_err(|e| write_error(out, format!("point format {out_id}: {e}")))?;
     format.extra_bytes = out_extra as u16;
@@ -106,8 +119,9 @@ pub fn write_las(
         let src = &input.records[first * in_len..(first + n) * in_len];
         dst.par_chunks_exact_mut(out_len)
             .zip(src.par_chunks_exact(in_len))
-            .zip(&ao[first..first + n])
-            .for_each(|((o, i), &a)| {
+            .enumerate()
+            .for_each(|(k, (o, i))| {
+                let a = ao[first + k];
                 o[..insert_at].copy_from_slice(&i[..insert_at]);
                 o[insert_at..insert_at + insert_len].fill(0);
                 o[insert_at + insert_len..insert_len + in_len].copy_from_slice(&i[insert_at..]);
@@ -122,75 +136,86 @@ pub fn write_las(
                     };
                     o[at..at + 2].copy_from_slice(&new.to_le_bytes());
                 }
-                match ao_type {
-                    AoType::F32 => o[ao_at..ao_at + 4].copy_from_slice(&a.to_le_bytes()),
-                    AoType::F64 => o[ao_at..ao_at + 8].copy_from_slice(&(a as f64).to_le_bytes()),
+                for (&(at, ty), d) in slots.iter().zip(&dims) {
+                    let v = d.values[first + k];
+                    match ty {
+                        FloatType::F32 => o[at..at + 4].copy_from_slice(&v.to_le_bytes()),
+                        FloatType::F64 => o[at..at + 8].copy_from_slice(&(v as f64).to_le_bytes()),
+                    }
                 }
             });
     };
     write_points(out, header, input.len(), fill, waveform)
 }
 
-/// Where `write_las` puts `ao` in the output record, in which type, and how many extra bytes
-/// the output record has: an existing float `ao` dimension is reused, else one is described
-/// (in the extra-bytes VLR) after the input's `in_extra` extra bytes. `insert_len` is the colour
-/// inserted before the extra bytes, `out_std` the output format's standard record length.
-fn ao_layout(
+/// Where `write_las` puts each of `dims` in the output record, in which type, and how many
+/// extra bytes the output record has: an existing float dimension of the name is reused, else
+/// one is described (in the extra-bytes VLR) after the input's `in_extra` extra bytes.
+/// `insert_len` is the colour inserted before the extra bytes, `out_std` the output format's
+/// standard record length.
+fn float_layout(
     input: &LasInput,
+    dims: &[ExtraFloat],
     in_extra: usize,
     insert_len: usize,
     out_std: usize,
     vlrs: &mut Vec<Vlr>,
     evlrs: &mut [Vlr],
-) -> Result<(usize, AoType, usize)> {
-    let existing = input.extra.iter().find(|d| d.name == AO_NAME);
-    Ok(match existing {
-        Some(d) if d.data_type == 9 && d.scale.is_none() && d.value_offset.is_none() => {
-            (d.offset + insert_len, AoType::F32, in_extra)
-        }
-        Some(d) if d.data_type == 10 && d.scale.is_none() && d.value_offset.is_none() => {
-            (d.offset + insert_len, AoType::F64, in_extra)
-        }
-        Some(d) => {
-            return Err(Error::format(
-                &input.path,
-                format!(
-                    "has an extra dimension 'ao' of data type {} (scaled or not a float): \
-                     rename it before writing a new 'ao'",
-                    d.data_type
-                ),
-            ))
-        }
-        None => {
-            let documented: usize = input.extra.iter().map(|d| d.size).sum();
-            let mut data = Vec::new();
-            // Undocumented extra bytes keep their place: describe them so 'ao' lands after.
-            let mut gap = in_extra - documented;
-            let mut k = 0;
-            while gap > 0 {
-                let n = gap.min(255);
-                data.extend(descriptor(
-                    &format!("undocumented_{k}"),
-                    0,
-                    n as u8,
-                    "",
-                    None,
-                ));
-                gap -= n;
-                k += 1;
+) -> Result<(Vec<(usize, FloatType)>, usize)> {
+    let mut slots = Vec::with_capacity(dims.len());
+    let mut data = Vec::new();
+    let mut added = 0;
+    for dim in dims {
+        let existing = input.extra.iter().find(|d| d.name == dim.name);
+        match existing {
+            Some(d) if d.data_type == 9 && d.scale.is_none() && d.value_offset.is_none() => {
+                slots.push((d.offset + insert_len, FloatType::F32));
             }
-            data.extend(descriptor(AO_NAME, 9, 0, AO_DESCRIPTION, Some((0.0, 1.0))));
-            let found = vlrs
-                .iter_mut()
-                .chain(evlrs.iter_mut())
-                .find(|v| is_extra_bytes_vlr(v));
-            match found {
-                Some(v) => v.data.extend(data),
-                None => vlrs.push(extra_bytes_vlr(data)),
+            Some(d) if d.data_type == 10 && d.scale.is_none() && d.value_offset.is_none() => {
+                slots.push((d.offset + insert_len, FloatType::F64));
             }
-            (out_std + in_extra, AoType::F32, in_extra + 4)
+            Some(d) => {
+                return Err(Error::format(
+                    &input.path,
+                    format!(
+                        "has an extra dimension '{}' of data type {} (scaled or not a float): \
+                         rename it before writing a new '{}'",
+                        dim.name, d.data_type, dim.name
+                    ),
+                ))
+            }
+            None => {
+                if added == 0 {
+                    // Undocumented extra bytes keep their place: describe them so the new
+                    // dimensions land after.
+                    let documented: usize = input.extra.iter().map(|d| d.size).sum();
+                    let mut gap = in_extra - documented;
+                    let mut k = 0;
+                    while gap > 0 {
+                        let n = gap.min(255);
+                        let name = format!("undocumented_{k}");
+                        data.extend(descriptor(&name, 0, n as u8, "", None));
+                        gap -= n;
+                        k += 1;
+                    }
+                }
+                data.extend(descriptor(dim.name, 9, 0, dim.description, Some(dim.range)));
+                slots.push((out_std + in_extra + added, FloatType::F32));
+                added += 4;
+            }
         }
-    })
+    }
+    if !data.is_empty() {
+        let found = vlrs
+            .iter_mut()
+            .chain(evlrs.iter_mut())
+            .find(|v| is_extra_bytes_vlr(v));
+        match found {
+            Some(v) => v.data.extend(data),
+            None => vlrs.push(extra_bytes_vlr(data)),
+        }
+    }
+    Ok((slots, in_extra + added))
 }
 
 /// The output header: the input's, in the input's LAS version when that can hold the output,
