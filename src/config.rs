@@ -111,7 +111,7 @@ impl Default for ComputeParams {
             projection: ProjectionChoice::Auto,
             estimator: Estimator::Horizon,
             blur: true,
-            sampling: crate::ssao::Sampling::Uniform,
+            sampling: crate::ssao::Sampling::Adaptive,
             ssao_only: false,
             occlusion: crate::merge::union::Occlusion::Average,
             rays: 32,

@@ -114,7 +114,7 @@ pub struct MergeArgs {
     pub estimator: Estimator,
     /// Horizon march density: every pixel (`uniform`), or once per 2×2 or 4×4 block on flat,
     /// continuous surfaces small against t_max (`adaptive`).
-    #[arg(long, value_enum, default_value_t = Sampling::Uniform)]
+    #[arg(long, value_enum, default_value_t = Sampling::Adaptive)]
     pub sampling: Sampling,
     /// Write each scan's single-view SSAO instead of the multi-view merge.
     #[arg(long)]
@@ -335,7 +335,7 @@ pub struct SweepArgs {
     pub seed: u64,
     /// Horizon march density of every setting of the sweep (`uniform` or `adaptive`, as for
     /// `merge`).
-    #[arg(long, value_enum, default_value_t = Sampling::Uniform)]
+    #[arg(long, value_enum, default_value_t = Sampling::Adaptive)]
     pub sampling: Sampling,
     /// Also run the union occlusion (`merge --occlusion union`) with every horizon setting, at
     /// each of these rays per point (comma-separated).

@@ -31,15 +31,16 @@ pub enum Estimator {
 #[serde(rename_all = "lowercase")]
 pub enum Sampling {
     /// Every pixel.
-    #[default]
     Uniform,
     /// Once per 2×2 or 4×4 block on flat, continuous surfaces small against `t_max`, every
     /// pixel at creases, edges and concave regions ([`multires`]).
+    #[default]
     Adaptive,
 }
 
 impl Sampling {
-    /// The default (left out of the products' parameters and reports).
+    /// Left out of the products' parameters and reports, so that products made with every
+    /// pixel before `adaptive` became the default keep their parameters (and stay fresh).
     pub fn is_uniform(&self) -> bool {
         *self == Sampling::Uniform
     }
@@ -70,7 +71,7 @@ pub struct SsaoParams {
     /// Apply the 5×5 Gaussian blur.
     pub blur: bool,
     /// Evaluation density of the horizon march (left out of the JSON when uniform, so
-    /// products and reports of the default keep their parameters).
+    /// products made before `adaptive` became the default keep their parameters).
     #[serde(skip_serializing_if = "Sampling::is_uniform")]
     pub sampling: Sampling,
 }
