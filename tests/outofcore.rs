@@ -9,10 +9,6 @@ mod common;
 use common::*;
 use std::path::{Path, PathBuf};
 
-fn report(dir: &Path) -> serde_json::Value {
-    serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap()
-}
-
 fn merge(scans: &[PathBuf], out: &Path, extra: &[&str]) -> serde_json::Value {
     let mut a = vec![
         "merge",

@@ -3,12 +3,7 @@
 
 mod common;
 
-use common::mvao_ok;
-use std::path::Path;
-
-fn report(dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
-}
+use common::{mvao_ok, report};
 
 #[test]
 fn adaptive_by_default_with_the_error_of_every_pixel() {

@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::{dome, mvao};
+use common::{dome, mvao, report};
 use glam::{DMat3, DMat4, DVec2, DVec3, Vec3};
 use mvao::config::ComputeParams;
 use mvao::io::align::check_rigid;
@@ -289,11 +289,6 @@ fn json_matrix(m: DMat4) -> String {
         .map(|(r, c)| format!("{}", m.col(c)[r]))
         .collect();
     format!("[{}]", rows.join(", "))
-}
-
-fn report(dir: &Path) -> serde_json::Value {
-    let text = std::fs::read_to_string(dir.join("report.json")).unwrap();
-    serde_json::from_str(&text).unwrap()
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -98,6 +98,11 @@ pub fn mean_by_extremes(v: &[f32], key: &[f32], frac: f64) -> (f32, f32) {
     (mean(&idx[idx.len() - m..]), mean(&idx[..m]))
 }
 
+/// The `report.json` a run wrote into `dir`.
+pub fn report(dir: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap()
+}
+
 /// Runs the `mvao` binary.
 pub fn mvao(args: &[&str]) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_mvao"))
