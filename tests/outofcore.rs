@@ -264,6 +264,24 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
         peak >> 20,
         part_budget >> 20
     );
+
+    // One step and four and a half views: few views are kept, most partner maps are read
+    // back while the step's own memory grows, and the peak still stays within the budget.
+    let tight_budget = floor + 9 * view / 2;
+    let one_step = d.path().join("one-step");
+    let r = merge(
+        &scans,
+        &one_step,
+        &["--max-memory", &format!("{}M", tight_budget >> 20)],
+    );
+    assert_eq!(outputs(&one_step), outputs(&free));
+    let peak = r["peak_rss_bytes"].as_u64().unwrap();
+    assert!(
+        peak as f64 <= tight_budget as f64 * 1.1,
+        "peak {} MiB over the {} MiB budget",
+        peak >> 20,
+        tight_budget >> 20
+    );
 }
 
 /// A damaged summary in the work directory is written again by the next run (it does not

@@ -368,6 +368,10 @@ impl MapCache {
                     // Decoding holds the file's bytes, the decoder's channels and the maps
                     // built from them at one moment.
                     let bytes = view_bytes(pixels, 0);
+                    // What the process holds beside the cache grows within a scan's step (its
+                    // sums, the outputs being built): measured again before each load, so that
+                    // the growth is counted against the budget.
+                    self.measure();
                     self.make_room(3 * bytes);
                     self.loads += 1;
                     self.bytes_read += bytes;
