@@ -124,6 +124,7 @@ fn main() {
             dmin: 0.0,
             dmax: 10.0,
             border_px: 64.0,
+            spacing: 0.04,
         },
     );
     let cells = view_cells(&views, &scans);
@@ -135,6 +136,7 @@ fn main() {
             dmin: 0.0,
             dmax: 10.0,
             border_px: 64.0,
+            spacing: 0.04,
         };
         let (own, _) = views[0].point_ssao();
         let (t, (_, st)) = best_of(3, || {

@@ -72,6 +72,8 @@ pub struct ComputeParams {
     pub dmax: Option<f32>,
     /// t_p.
     pub border_px: f32,
+    /// κ of the spacing weight (0 = off).
+    pub spacing_weight: f32,
     /// Seed.
     pub seed: u64,
     /// Sensor model choice.
@@ -107,6 +109,7 @@ impl Default for ComputeParams {
             dmin: None,
             dmax: None,
             border_px: 64.0,
+            spacing_weight: crate::merge::weights::SPACING_WEIGHT,
             seed: 0,
             projection: ProjectionChoice::Auto,
             estimator: Estimator::Horizon,

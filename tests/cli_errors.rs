@@ -379,6 +379,10 @@ fn bad_flag_values_are_rejected() {
         &["merge".into(), s(&a), "--dmin=5".into(), "--dmax=1".into()],
         "--dmin 5 must be below --dmax 1",
     );
+    fails(
+        &["merge".into(), s(&a), "--spacing-weight=-0.1".into()],
+        "--spacing-weight must be 0 or positive",
+    );
     let m = d.path().join("a_pose.txt");
     std::fs::write(&m, "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
     let pose = format!("a={}", s(&m));

@@ -53,6 +53,7 @@ fn check(offset: DVec3, model: SensorModel) {
             dmin: 0.0,
             dmax: 20.0,
             border_px: 16.0,
+            spacing: 0.04,
         };
         let packed = view_maps(&views, &mp);
         let cells = view_cells(&views, &scans);

@@ -100,6 +100,10 @@ pub struct MergeArgs {
     /// Border-weight threshold t_p in pixels.
     #[arg(long, default_value_t = 64.0)]
     pub border_px: f32,
+    /// Spacing weight κ: a view whose point spacing at the match exceeds κ·t_max counts less
+    /// (a sharp near view outweighs coarse far ones); 0 = the paper's weights only.
+    #[arg(long, default_value_t = ComputeParams::default().spacing_weight)]
+    pub spacing_weight: f32,
     /// Gamma of the grey colours and previews (grey = ao^(1/gamma)); the `ao` scalar stays linear.
     #[arg(long, default_value_t = 1.0)]
     pub gamma: f32,
@@ -620,6 +624,12 @@ impl MergeArgs {
                 self.border_px
             ));
         }
+        if !(self.spacing_weight >= 0.0 && self.spacing_weight.is_finite()) {
+            return Err(format!(
+                "--spacing-weight must be 0 or positive, got {}",
+                self.spacing_weight
+            ));
+        }
         Ok(Config {
             scans: self.scans,
             place: self.place.options(),
@@ -636,6 +646,7 @@ impl MergeArgs {
                 dmin: self.dmin,
                 dmax: self.dmax,
                 border_px: self.border_px,
+                spacing_weight: self.spacing_weight,
                 seed: self.seed,
                 projection: self.projection,
                 estimator: self.estimator,

@@ -1,7 +1,7 @@
 //! Merging views (eq. 6–12): for every point of scan i and every scan j (i included), find the
 //! point scan j stored at the projection of `M_j⁻¹ M_i p_i` (and its N×N neighbours), keep it
 //! when it is the same surface seen from the right side (eq. 7), and average the views' SSAO
-//! with weights `w_d·w_n·w_b`. Relative transforms are composed in f64 once per pair and
+//! with weights `w_d·w_n·w_b·w_s`. Relative transforms are composed in f64 once per pair and
 //! applied to the f32 local points. Reads no files, rasterizes nothing.
 
 pub mod border;
@@ -16,7 +16,7 @@ use cull::{PointCells, ViewCells};
 use glam::{Affine3A, DMat4, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
 use serde::Serialize;
-use weights::{faces, w_border, w_distance, w_normal, within};
+use weights::{faces, w_border, w_distance, w_normal, w_spacing, within};
 
 /// What the merge needs of one view (scan j).
 #[derive(Debug, Clone, Copy)]
@@ -103,6 +103,8 @@ pub struct MergeParams {
     pub dmax: f32,
     /// `t_p` of eq. 12 (pixels).
     pub border_px: f32,
+    /// `s = κ·t_max` of the spacing weight (metres; 0 = off).
+    pub spacing: f32,
 }
 
 /// Counters of one scan's merge; add up with `+=`.
@@ -251,7 +253,9 @@ pub fn accumulate(
                 if !faces(p_ij, n_ij, b) {
                     continue;
                 }
-                let w = rest[3] * w_border(rest[5], prm.border_px, rad_i, rad_ij);
+                let w = rest[3]
+                    * w_border(rest[5], prm.border_px, rad_i, rad_ij)
+                    * w_spacing(rad_ij, prm.spacing);
                 st.samples_kept += 1;
                 num[k] += rest[4] * w;
                 den[k] += w;
@@ -425,6 +429,7 @@ mod tests {
             dmin: 0.0,
             dmax: 4.0,
             border_px: 64.0,
+            spacing: 0.0,
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao0, &b0, &prm);
         let maps2 = ViewMaps::new(&proj, &g, &ao1, &b1, &prm);
@@ -453,6 +458,53 @@ mod tests {
     }
 
     #[test]
+    fn a_sharp_view_outweighs_a_coarse_one() {
+        let (proj, pts) = patch();
+        let px: Vec<u32> = (0..9).collect();
+        let n = vec![Vec3::Z; 9];
+        // The same surface seen by a sharp view (spacing 0.05 m, AO 0.2) and a coarse one
+        // (spacing 0.2 m, AO 0.8).
+        let sharp = rasterize(3, 3, &px, &[2.0; 9], &pts, &n, &[0.05; 9]);
+        let coarse = rasterize(3, 3, &px, &[2.0; 9], &pts, &n, &[0.2; 9]);
+        let b = vec![1000.0f32; 9];
+        let merged = |spacing: f32| {
+            let prm = MergeParams {
+                neighbors: 1,
+                dmin: 0.0,
+                dmax: 0.0,
+                border_px: 64.0,
+                spacing,
+            };
+            let m0 = ViewMaps::new(&proj, &sharp, &[0.2; 9], &b, &prm);
+            let m1 = ViewMaps::new(&proj, &coarse, &[0.8; 9], &b, &prm);
+            let views = [
+                view(&proj, &m0, DMat4::IDENTITY),
+                view(&proj, &m1, DMat4::IDENTITY),
+            ];
+            merge_scan(
+                0,
+                &pts,
+                &[0.05; 9],
+                &[0.2; 9],
+                &px,
+                None,
+                &views,
+                &[false, false],
+                &prm,
+                &|_| {},
+            )
+            .0
+        };
+        // Off: the plain mean. s = 0.1 m: w_s = 1/(1 + 0.25) = 0.8 and 1/(1 + 4) = 0.2, so
+        // (0.2·0.8 + 0.8·0.2) / 1.0 = 0.32.
+        for (spacing, want) in [(0.0, 0.5), (0.1, 0.32)] {
+            for a in merged(spacing) {
+                assert!((a - want).abs() < 1e-6, "s = {spacing}: {a}");
+            }
+        }
+    }
+
+    #[test]
     fn zero_weight_falls_back_to_own_ssao_and_is_counted() {
         let (proj, pts) = patch();
         let px: Vec<u32> = (0..9).collect();
@@ -466,6 +518,7 @@ mod tests {
             dmin: 0.0,
             dmax: 4.0,
             border_px: 64.0,
+            spacing: 0.0,
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao, &b, &prm);
         let v = [view(&proj, &maps1, DMat4::IDENTITY)];
@@ -498,6 +551,7 @@ mod tests {
             dmin: 0.0,
             dmax: 0.0,
             border_px: 64.0,
+            spacing: 0.0,
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao, &b, &prm);
         let v = [view(&proj, &maps1, DMat4::IDENTITY)];

@@ -1,6 +1,12 @@
-//! The view weights of eq. 9–12: `w = w_d · w_n · w_b`, and the correspondence test of eq. 7.
+//! The view weights of eq. 9–12, `w = w_d · w_n · w_b`, times the spacing weight `w_s` that lets
+//! sharp views outweigh coarse ones, and the correspondence test of eq. 7.
 
 use glam::{Vec3, Vec4};
+
+/// Default κ of [`w_spacing`]: a view counts half where its point spacing is a tenth of
+/// `t_max`. Chosen on five multi-station scenes and checked on three others
+/// (`docs/accuracy.md`).
+pub const SPACING_WEIGHT: f32 = 0.1;
 
 /// Eq. 10: `w_d = max(1 − max(depth − d_min, 0)/d_max, 0.1)`. A non-positive `d_max` disables
 /// the distance falloff (weight 1).
@@ -28,6 +34,20 @@ pub fn w_border(db: f32, tp: f32, rad_i: f32, rad_ij: f32) -> f32 {
         return if db > 0.0 { 1.0 } else { 0.0 };
     }
     (db / den).min(1.0)
+}
+
+/// The spacing weight `w_s = 1 / (1 + (rad_ij / s)²)` of a view whose point spacing at the match
+/// is `rad_ij`, with `s = κ·t_max` (`docs/design.md`): a view that samples the `t_max`
+/// neighbourhood with fewer than about `1/κ` points across counts less, views finer than `s`
+/// count alike. A non-positive or non-finite `s` (off, or `t_max = ∞`) gives weight 1.
+#[inline]
+pub fn w_spacing(rad_ij: f32, s: f32) -> f32 {
+    if !(s > 0.0 && s.is_finite()) {
+        return 1.0;
+    }
+    let q = rad_ij / s;
+    // q² overflowing to ∞ gives 0, never NaN (radii are finite and positive upstream).
+    1.0 / (1.0 + q * q)
 }
 
 /// Eq. 7: `p_ij` corresponds to `q` (scan i's point in scan j's frame) when
@@ -92,6 +112,20 @@ mod tests {
         assert_eq!(w_border(0.0, 64.0, 0.01, 0.01), 0.0);
         // zero radii (duplicates upstream are floored; here raw zeros): α taken as 1
         assert_eq!(w_border(5.0, 64.0, 0.0, 0.0), 5.0 / 64.0);
+    }
+
+    #[test]
+    fn spacing_weight_hand_values() {
+        // rad = s: 1/2; rad = s/10: 1/1.01; rad = 3s: 1/10
+        assert_eq!(w_spacing(0.04, 0.04), 0.5);
+        assert!((w_spacing(0.004, 0.04) - 1.0 / 1.01).abs() < 1e-6);
+        assert!((w_spacing(0.12, 0.04) - 0.1).abs() < 1e-6);
+        // off, or t_max = ∞
+        assert_eq!(w_spacing(0.5, 0.0), 1.0);
+        assert_eq!(w_spacing(0.5, f32::INFINITY), 1.0);
+        assert_eq!(w_spacing(0.5, f32::NAN), 1.0);
+        // a huge radius weighs nothing, and is not NaN
+        assert_eq!(w_spacing(f32::MAX, 1e-6), 0.0);
     }
 
     #[test]

@@ -208,7 +208,7 @@ fn merge_plan(
         .filter(|s| !s.ortho)
         .map(|s| (s.depth_min, s.depth_max))
         .collect();
-    let mp = plan::merge_params(prm, &ranges, note);
+    let mp = plan::merge_params(prm, &ranges, tmax, note);
     let mut times: Vec<(String, f64)> = Vec::new();
     for s in sums.iter().flatten() {
         for (k, t) in &s.times {
@@ -450,6 +450,7 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
             dmin: 0.0,
             dmax: 0.0,
             border_px: prm.border_px,
+            spacing: 0.0,
         },
         defaults_note: note,
         times: vec![("catalog".into(), cat.secs)],

@@ -113,8 +113,13 @@ pub fn ssao_params(
 }
 
 /// The merge parameters of a run from the depth ranges of its views with a sensor position
-/// (`d_min`/`d_max` defaults), noting how they were derived.
-pub fn merge_params(prm: &ComputeParams, ranges: &[(f32, f32)], note: &mut String) -> MergeParams {
+/// (`d_min`/`d_max` defaults) and its `tmax`, noting how they were derived.
+pub fn merge_params(
+    prm: &ComputeParams,
+    ranges: &[(f32, f32)],
+    tmax: f32,
+    note: &mut String,
+) -> MergeParams {
     let (mut dmin, dmax) = ranges.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), r| {
         (lo.min(r.0), hi.max(r.1))
     });
@@ -131,6 +136,7 @@ pub fn merge_params(prm: &ComputeParams, ranges: &[(f32, f32)], note: &mut Strin
         dmin: prm.dmin.unwrap_or(dmin),
         dmax: prm.dmax.unwrap_or(dmax),
         border_px: prm.border_px,
+        spacing: prm.spacing_weight * tmax,
     }
 }
 

@@ -161,6 +161,7 @@ mod tests {
             dmin: 0.0,
             dmax: 10.0,
             border_px: 64.0,
+            spacing: 0.0,
         };
         let m = store.maps(0, scan.pose, &prm).unwrap();
         assert_eq!(m.ao, v.ssao.ao);
