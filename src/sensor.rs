@@ -313,14 +313,36 @@ fn add_warps(fit: &mut Fit, scan: &Scan, grid: &crate::scan::Grid) {
     if base <= 0.3 {
         return;
     }
-    let knots = |v: &mut Vec<(usize, f32)>, n: usize| -> Option<Warp> {
-        v.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
+    let knots = |v: &[(usize, f32)], n: usize| -> Option<Warp> {
+        // The median of each index's values: grouped by a counting sort (indices are below
+        // `n`), the middle one selected in each group, where a full sort of the pairs cost
+        // most of the sensor fit of a small scan.
+        if n == 0 {
+            return None;
+        }
+        let mut start = vec![0usize; n + 1];
+        for &(k, _) in v {
+            start[k.min(n - 1) + 1] += 1;
+        }
+        for k in 0..n {
+            start[k + 1] += start[k];
+        }
+        let mut vals = vec![0.0f32; v.len()];
+        let mut fill = start.clone();
+        for &(k, x) in v {
+            let k = k.min(n - 1);
+            vals[fill[k]] = x;
+            fill[k] += 1;
+        }
         let mut known: Vec<(usize, f64)> = Vec::new();
-        let mut s = 0usize;
-        while s < v.len() {
-            let e = s + v[s..].partition_point(|q| q.0 == v[s].0);
-            known.push((v[s].0, v[(s + e) / 2].1 as f64));
-            s = e;
+        for k in 0..n {
+            let group = &mut vals[start[k]..start[k + 1]];
+            if group.is_empty() {
+                continue;
+            }
+            let mid = group.len() / 2;
+            let (_, m, _) = group.select_nth_unstable_by(mid, f32::total_cmp);
+            known.push((k, f64::from(*m)));
         }
         if known.len() < 2 {
             return None;
@@ -339,9 +361,9 @@ fn add_warps(fit: &mut Fit, scan: &Scan, grid: &crate::scan::Grid) {
         }
         Warp::new(out)
     };
-    let [mut px, mut py] = per;
-    let wx = knots(&mut px, w);
-    let wy = knots(&mut py, h);
+    let [px, py] = per;
+    let wx = knots(&px, w);
+    let wy = knots(&py, h);
     let warped = err(wx.as_ref(), wy.as_ref());
     // Keep warps only where they clearly help (an evenly stepped grid fits linearly).
     if warped < 0.8 * base && base > 0.3 {
