@@ -105,6 +105,7 @@ impl WorkDirStore {
             budget: setup.budget,
             outside: 0,
             reserve: 0,
+            step_start: 0,
             used: 0,
             maps: HashMap::new(),
             fresh: HashMap::new(),
@@ -249,6 +250,7 @@ impl ViewStore for WorkDirStore {
     fn reserve(&mut self, bytes: u64) {
         self.cache.reserve = bytes;
         self.cache.measure();
+        self.cache.step_start = self.cache.outside;
     }
 
     fn maps(&mut self, j: usize, pose: DMat4, prm: &MergeParams) -> Result<Arc<MergeMaps>> {
@@ -289,11 +291,15 @@ impl Drop for WorkDirStore {
 /// cyclic order, least-recently-used would miss every time once the maps do not all fit.
 struct MapCache {
     budget: u64,
-    /// Memory the process holds outside the cache (measured once per scan).
+    /// Memory the process holds outside the cache (measured when a scan's step begins and
+    /// before each load).
     outside: u64,
     /// Memory the scan being merged will allocate after that measurement (its sums, cells
     /// and results), kept free.
     reserve: u64,
+    /// `outside` when the scan's step began: what the step allocates since then is part of its
+    /// reserve, not more of it.
+    step_start: u64,
     used: u64,
     maps: HashMap<usize, (Arc<MergeMaps>, u64)>,
     /// Views this run prepared, kept for the merge (not placed yet).
@@ -324,10 +330,11 @@ impl MapCache {
 
     /// Evicts maps, those needed latest first, until `need` more bytes fit in the budget.
     fn make_room(&mut self, need: u64) {
-        let room = self
-            .budget
-            .saturating_sub(self.outside)
-            .saturating_sub(self.reserve);
+        // What the step has grown by since it began is part of its reserve, not more of it
+        // (memory freed meanwhile by others leaves the step's reserve whole).
+        let grown = self.outside.saturating_sub(self.step_start);
+        let step = self.outside + self.reserve.saturating_sub(grown);
+        let room = self.budget.saturating_sub(step);
         while self.used + need > room {
             let keys = self.maps.keys().chain(self.fresh.keys()).copied();
             let Some(k) = keys.max_by_key(|&k| self.next_use(k)) else {
