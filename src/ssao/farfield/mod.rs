@@ -80,6 +80,10 @@ use sweep::Family;
 const NEAR: i64 = 8;
 /// Samples per block.
 const BLOCK: i64 = 16;
+const _: () = assert!(
+    BLOCK > 0 && BLOCK.count_ones() == 1,
+    "blocks are aligned by masks"
+);
 /// Largest number of line families.
 const MAX_FAMILIES: usize = 64;
 /// Rows and columns of the pixel tiles evaluated family by family: neighbouring receivers

@@ -235,7 +235,12 @@ impl Family {
         };
         let mut d = 1i64;
         while d <= reach {
-            let j = (i + dir * d).rem_euclid(n);
+            // |i ± d| < 2n (d ≤ reach < n): one wrap instead of a division per sample.
+            let j = match i + dir * d {
+                j if j < 0 => j + n,
+                j if j >= n => j - n,
+                j => j,
+            };
             if d > NEAR {
                 if let Some((v0, v1, span, sph)) =
                     self.block_at(l, j, d, dir, reach, |e| reaches(e, cur))
@@ -294,12 +299,23 @@ impl Family {
         within: impl Fn(i64) -> bool,
     ) -> Option<(usize, usize, i64, Vec4)> {
         let n = self.len as i64;
+        // Blocks are powers of two long and aligned: a block of any level begins (walking up)
+        // or ends (walking down) at `j` only where one of the smallest does, so most samples
+        // are settled by one mask instead of a division per level.
+        let edge = if dir < 0 {
+            (j + 1) & (BLOCK - 1) == 0 || j == n - 1
+        } else {
+            j & (BLOCK - 1) == 0
+        };
+        if !edge {
+            return None;
+        }
         for (k, level) in self.levels.iter().enumerate().rev() {
             let size = BLOCK << k;
             if size > d.max(BLOCK) {
                 continue;
             }
-            let start = j - j % size;
+            let start = j & !(size - 1);
             let end = (start + size).min(n);
             let (first, span) = if dir < 0 {
                 (j == end - 1, j - start + 1)
