@@ -8,7 +8,8 @@
 #
 # `survey` is shaped like a real survey: courtyard stations of 2048×1024 with open sky
 # (unfilled pixels) and no normals in the files, so the run estimates them, under a 1G budget.
-# SYNTH_OPTS adds options to `mvao synth` in the other suites (`--no-normals`, …).
+# SYNTH_OPTS adds options to `mvao synth` (`--no-normals`, …; `--no-grid` for a survey whose
+# files, like many exports, lost the scanner's grid).
 #
 # REPEAT=N runs the job N times on the same site and prints every run and the range and
 # median: on a shared machine one run's time says little.

@@ -8,6 +8,7 @@ use crate::gbuffer::{self, GBuffer, EMPTY};
 use crate::merge::cull::ViewCells;
 use crate::merge::{MergeParams, View, ViewMaps};
 use crate::projection::Projection;
+use crate::scan::NO_CELL;
 use crate::scan::{normals, Scan};
 use crate::sensor::{self, ProjectionChoice, SensorSetup};
 use crate::ssao::AoMap;
@@ -146,7 +147,9 @@ pub fn view_geometry(scan: &Scan, choice: ProjectionChoice) -> Result<ViewGeomet
 
 /// Each point's unit normal (the input's, facing the sensor, or estimated where missing) and
 /// radius `rad(p)`, with a note on where the normals came from. Neighbours come from the
-/// native grid when the sensor model uses it, else from a k-d tree.
+/// native grid when the sensor model uses it, else from windows of a grid over the sensor's
+/// image ([`sensor_grid`]) where its cells hold at most a point each, else from exact
+/// nearest-neighbour queries.
 pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, String) {
     let proj: &Projection = &sensor.projection;
     let invalid_normals = scan
@@ -160,9 +163,18 @@ pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, 
         .grid
         .as_ref()
         .filter(|g| sensor.grid_pixels.is_some() && g.uncelled() == 0);
-    let (est, radii) = match grid {
-        Some(g) => normals::estimate_grid(&scan.points, g, need, toward),
-        None => normals::estimate(&scan.points, need, toward),
+    let (source, (est, radii)) = match grid {
+        Some(g) => (
+            ", neighbours from the native grid",
+            normals::estimate_grid(&scan.points, g, need, toward),
+        ),
+        None => {
+            let cells = sensor_grid(&scan.points, proj);
+            match normals::estimate_pixels(&scan.points, &cells, need, toward) {
+                Some(e) => (", neighbours from the sensor's image", e),
+                None => ("", normals::estimate(&scan.points, need, toward)),
+            }
+        }
     };
     let (normals, note) = match (&scan.normals, est) {
         (Some(given), Some(est)) => {
@@ -191,17 +203,53 @@ pub fn scan_normals(scan: &Scan, sensor: &SensorSetup) -> (Vec<Vec3>, Vec<f32>, 
                 .collect(),
             "input".to_string(),
         ),
-        (None, Some(est)) => (
-            est,
-            if grid.is_some() {
-                "estimated (PCA, k = 16, neighbours from the native grid)".to_string()
-            } else {
-                "estimated (PCA, k = 16)".to_string()
-            },
-        ),
+        (None, Some(est)) => (est, format!("estimated (PCA, k = 16{source})")),
         (None, None) => (vec![Vec3::Z; scan.len()], "none".into()),
     };
     (normals, radii, note)
+}
+
+/// Cells per map pixel along each side of [`sensor_grid`]: a map built from loose points is a
+/// little coarser than their spacing (see `sensor::MAP_STEP_MARGIN`), so a grid of the map's
+/// own pixels would put two points in some cells; 1.25 times finer, evenly spaced points each
+/// get their own.
+const SENSOR_GRID_SCALE: f32 = 1.25;
+
+/// The cell of each point in a grid over `proj`'s image, [`SENSOR_GRID_SCALE`] times finer
+/// than its map ([`crate::scan::NO_CELL`] outside it): the neighbourhood structure a scanner's
+/// native grid would have given, for scans stored without one.
+fn sensor_grid(points: &[Vec3], proj: &Projection) -> crate::scan::Grid {
+    let f = SENSOR_GRID_SCALE;
+    let cols = (proj.width as f32 * f).ceil().max(1.0) as u32;
+    let rows = (proj.height as f32 * f).ceil() as u32;
+    let cells: Vec<(u32, u32)> = points
+        .par_iter()
+        .map(|&p| {
+            let Some(pr) = proj.project(p).filter(|pr| pr.depth.is_finite()) else {
+                return (NO_CELL, NO_CELL);
+            };
+            let (x, y) = ((pr.x * f).floor(), (pr.y * f).floor());
+            if !(x.is_finite() && y >= 0.0 && y < rows as f32) {
+                return (NO_CELL, NO_CELL);
+            }
+            let x = if proj.wrap_x {
+                (x as i64).rem_euclid(i64::from(cols))
+            } else {
+                x as i64
+            };
+            if (0..i64::from(cols)).contains(&x) {
+                (y as u32, x as u32)
+            } else {
+                (NO_CELL, NO_CELL)
+            }
+        })
+        .collect();
+    crate::scan::Grid {
+        rows,
+        cols,
+        row: cells.par_iter().map(|c| c.0).collect(),
+        col: cells.par_iter().map(|c| c.1).collect(),
+    }
 }
 
 /// Flips `n` to face the sensor direction `t`.

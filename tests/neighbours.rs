@@ -14,15 +14,20 @@ fn compare(path: &std::path::Path) -> (f32, f32) {
     let toward = |p| setup.projection.toward_sensor(p);
     let (nt, rt) = normals::estimate(&scan.points, true, toward);
     let (ng, rg) = normals::estimate_grid(&scan.points, scan.grid.as_ref().unwrap(), true, toward);
-    let (nt, ng) = (nt.unwrap(), ng.unwrap());
-    let mut dr: Vec<f32> = rt
+    medians(&rt, &rg, &nt.unwrap(), &ng.unwrap())
+}
+
+/// Median relative difference of radii `ra` and `rb` and median angle (degrees) between
+/// normals `na` and `nb`.
+fn medians(ra: &[f32], rb: &[f32], na: &[glam::Vec3], nb: &[glam::Vec3]) -> (f32, f32) {
+    let mut dr: Vec<f32> = ra
         .iter()
-        .zip(&rg)
+        .zip(rb)
         .map(|(a, b)| (a - b).abs() / a.max(1e-9))
         .collect();
-    let mut da: Vec<f32> = nt
+    let mut da: Vec<f32> = na
         .iter()
-        .zip(&ng)
+        .zip(nb)
         .map(|(a, b)| a.dot(*b).clamp(-1.0, 1.0).acos().to_degrees())
         .collect();
     dr.sort_by(f32::total_cmp);
@@ -83,6 +88,115 @@ fn cell_grid_neighbours_are_the_kd_trees() {
             "{}: {} points, {differ} normals differ at ties",
             p.display(),
             pts.len()
+        );
+    }
+}
+
+/// The share of a map's filled pixels beside a one-pixel hole (an empty pixel whose left and
+/// right, or upper and lower, neighbours are filled) and the share of points that share their
+/// pixel with another.
+fn holes_and_sharing(
+    points: &[glam::Vec3],
+    proj: &mvao::testing::projection::Projection,
+) -> (f64, f64) {
+    use mvao::testing::gbuffer::{point_pixels, EMPTY};
+    let (px, _) = point_pixels(points, proj, None);
+    let (w, h) = (proj.width, proj.height);
+    let mut filled = vec![false; w * h];
+    let mut shared = 0usize;
+    for &p in px.iter().filter(|&&p| p != EMPTY) {
+        shared += usize::from(filled[p as usize]);
+        filled[p as usize] = true;
+    }
+    let at = |x: usize, y: usize| filled[y * w + x];
+    let mut holes = 0usize;
+    for y in 1..h.saturating_sub(1) {
+        for x in 1..w.saturating_sub(1) {
+            if !at(x, y) && ((at(x - 1, y) && at(x + 1, y)) || (at(x, y - 1) && at(x, y + 1))) {
+                holes += 1;
+            }
+        }
+    }
+    let n = filled.iter().filter(|&&f| f).count().max(1) as f64;
+    (holes as f64 / n, shared as f64 / points.len().max(1) as f64)
+}
+
+/// Median relative radius difference and median normal angle (degrees) between the normals
+/// and radii `scan_normals` gives a scan and its exact k nearest neighbours'.
+fn against_exact(scan: &mvao::Scan, setup: &sensor::SensorSetup) -> (f32, f32, String) {
+    let (n, r, note) = mvao::testing::view::scan_normals(scan, setup);
+    let toward = |q| setup.projection.toward_sensor(q);
+    let (nt, rt) = normals::estimate(&scan.points, true, toward);
+    let (dr, da) = medians(&rt, &r, &nt.unwrap(), &n);
+    (dr, da, note)
+}
+
+/// Scanner stations stored without their grid (and without normals): the map built from the
+/// loose points is a little coarser than the scanner's grid, so surfaces have no holes, and
+/// neighbours come from a grid over the sensor's image, as close to the exact ones as a native
+/// grid's are.
+#[test]
+fn loose_scanner_points_get_a_map_without_holes_and_image_neighbours() {
+    use mvao::synth::{scan_scene, station_layout, SceneKind};
+    use mvao::testing::projection::SensorModel;
+    let kind = SceneKind::Suite { rooms: 2 };
+    for (model, w, h) in [
+        (SensorModel::Equirect, 720, 360),
+        (SensorModel::Perspective, 320, 240),
+    ] {
+        let st = station_layout(kind, model, 4, w, h)[1];
+        let mut scan = scan_scene(&kind.scene(), &st, 0.002, 0, "s");
+        scan.normals = None;
+        let native = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+        let (ndr, nda, nnote) = against_exact(&scan, &native);
+        eprintln!("native: radius {ndr:.4}, normal {nda:.2}°, {nnote}");
+        scan.grid = None;
+        scan.normals = None;
+        let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+        let (mw, mh) = (setup.projection.width, setup.projection.height);
+        let (holes, shared) = holes_and_sharing(&scan.points, &setup.projection);
+        let (dr, da, note) = against_exact(&scan, &setup);
+        eprintln!(
+            "{model:?} {w}x{h}: map {mw}x{mh}, holes {holes:.4}, shared {shared:.4}, radius {dr:.4}, normal {da:.2}°, {note}"
+        );
+        if model == SensorModel::Equirect {
+            let scale = w as f64 / mw as f64;
+            assert!((1.0..1.07).contains(&scale), "map {mw} wide for a {w} grid");
+        }
+        assert!(
+            holes < 0.002,
+            "{model:?}: {holes} of the pixels are one-pixel holes"
+        );
+        assert!(
+            shared < 0.1,
+            "{model:?}: {shared} of the points share a pixel"
+        );
+        assert!(note.contains("sensor's image"), "{model:?}: {note}");
+        assert!(
+            dr < 0.05 && da < 5.0,
+            "{model:?}: radius {dr}, normal {da}°"
+        );
+    }
+}
+
+/// Real scans stored without their grid sample their sensor's image unevenly (different steps
+/// along rows and columns), so a grid over the image would crowd points into cells: the exact
+/// neighbours serve them, and whichever path is taken agrees with them.
+#[test]
+fn loose_real_scans_keep_exact_neighbours() {
+    let mut files: Vec<_> = plys("stanford-bunny").into_iter().take(2).collect();
+    files.extend(plys("3dtk-uos-3scans").into_iter().take(1));
+    for p in &files {
+        let (mut scan, _) = read_scan(p).unwrap();
+        scan.grid = None;
+        scan.normals = None;
+        let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+        let (dr, da, note) = against_exact(&scan, &setup);
+        eprintln!("{}: radius {dr:.4}, normal {da:.2}°, {note}", p.display());
+        assert!(
+            dr < 0.05 && da < 5.0,
+            "{}: radius {dr}, normal {da}°",
+            p.display()
         );
     }
 }

@@ -497,6 +497,9 @@ pub struct SynthArgs {
     /// Leave the exact normals out of the scans.
     #[arg(long)]
     pub no_normals: bool,
+    /// Leave each point's row and column out of the scans (as many exports do).
+    #[arg(long)]
+    pub no_grid: bool,
     /// Write a depth-camera stream of this many frames instead of scans (the room, or a mesh
     /// scene: the camera orbits the --look-at point through the first --at position, else the
     /// built-in scene's first station): structured-light noise, 16-bit PNG frames,
@@ -575,6 +578,7 @@ impl SynthArgs {
                 angle_deg,
             },
             normals: !self.no_normals,
+            grid: !self.no_grid,
             stations: self.stations as usize,
             model: self.projection.into(),
             width: self.width,

@@ -80,41 +80,72 @@ where
     if points.is_empty() {
         return (need_normals.then(Vec::new), Vec::new());
     }
-    let tree = std::sync::OnceLock::new();
-    let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
+    let exact = Exact {
+        points,
+        grid,
+        tree: std::sync::OnceLock::new(),
+        k,
+    };
     let (mut radii, mut normals) = outputs(points.len(), need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
         // `(d² bits << 32) | index`, nearest first (the tree's answers in its order).
         let mut nb: Vec<u64> = Vec::with_capacity(1024);
         for (o, r) in rad.iter_mut().enumerate() {
-            let i = ci * CHUNK + o;
-            let p = points[i];
-            if !grid.is_some_and(|g| g.nearest(p, k, &mut nb)) {
-                let t = tree.get_or_init(|| kd_tree(points));
-                nb.clear();
-                nb.extend(
-                    t.nearest_n::<SquaredEuclidean>(&p.to_array(), kq)
-                        .iter()
-                        .map(|x| (u64::from(x.distance.to_bits()) << 32) | x.item),
-                );
-            }
-            // The last is the k-th neighbour (self included, as the paper's "smallest sphere
-            // containing the k nearest points").
-            let dk = nb
-                .last()
-                .map_or(0.0, |&x| f32::from_bits((x >> 32) as u32).max(0.0).sqrt());
-            *r = radius_from_dk(dk, k);
-            if !nrm.is_empty() {
-                let m = nb.len().min(K_NORMAL);
-                nrm[o] = pca_normal(
-                    nb[..m].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
-                    toward(p),
-                );
+            let (ri, ni) = exact.point(ci * CHUNK + o, &mut nb, need_normals, &toward);
+            *r = ri;
+            if let Some(x) = nrm.get_mut(o) {
+                *x = ni;
             }
         }
     };
     run_chunks(&mut radii, &mut normals, work);
     (need_normals.then_some(normals), radii)
+}
+
+/// Exact k nearest neighbours of any point of a cloud: from its cell grid, or where the grid
+/// gives up (or there is none), from a k-d tree built on first need.
+struct Exact<'a> {
+    points: &'a [Vec3],
+    grid: Option<&'a super::knn::VoxelGrid>,
+    tree: std::sync::OnceLock<ImmutableKdTree<f32, 3>>,
+    k: usize,
+}
+
+impl Exact<'_> {
+    /// The radius of point `i` and, when `need_normal`, its PCA normal (else zero), from its
+    /// exact k nearest neighbours. `nb` is scratch.
+    fn point<F>(&self, i: usize, nb: &mut Vec<u64>, need_normal: bool, toward: &F) -> (f32, Vec3)
+    where
+        F: Fn(Vec3) -> Vec3,
+    {
+        let (points, k) = (self.points, self.k);
+        let p = points[i];
+        if !self.grid.is_some_and(|g| g.nearest(p, k, nb)) {
+            let t = self.tree.get_or_init(|| kd_tree(points));
+            let kq = NonZeroUsize::new(k).unwrap_or(NonZeroUsize::MIN);
+            nb.clear();
+            nb.extend(
+                t.nearest_n::<SquaredEuclidean>(&p.to_array(), kq)
+                    .iter()
+                    .map(|x| (u64::from(x.distance.to_bits()) << 32) | x.item),
+            );
+        }
+        // The last is the k-th neighbour (self included, as the paper's "smallest sphere
+        // containing the k nearest points").
+        let dk = nb
+            .last()
+            .map_or(0.0, |&x| f32::from_bits((x >> 32) as u32).max(0.0).sqrt());
+        let normal = if need_normal {
+            let m = nb.len().min(K_NORMAL);
+            pca_normal(
+                nb[..m].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
+                toward(p),
+            )
+        } else {
+            Vec3::ZERO
+        };
+        (radius_from_dk(dk, k), normal)
+    }
 }
 
 /// Zeroed radii and (when wanted, else empty) normals for `n` points.
@@ -153,6 +184,10 @@ where
 /// Grid half-window tried first, and the largest one, for neighbours from a native grid.
 const GRID_R0: i64 = 4;
 const GRID_RMAX: i64 = 6;
+/// The same for a grid over the sensor's image ([`estimate_pixels`]), whose cells are smaller
+/// than the points' spacing by the caller's scale (1.25): windows as wide in spacings.
+const IMAGE_R0: i64 = 5;
+const IMAGE_RMAX: i64 = 7;
 
 /// Like [`estimate`], but the k nearest neighbours come from a window of the scan's native
 /// grid (the cells around the point, nearest in 3-D first) instead of a k-d tree: one pass
@@ -168,32 +203,112 @@ pub fn estimate_grid<F>(
 where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
+    estimate_window(points, grid, need_normals, toward, false)
+}
+
+/// Like [`estimate_grid`], for a grid that is not the scanner's own but the pixel each point
+/// projects to in its fitted sensor map (the map of a scan without a native grid holds about
+/// one point per pixel, so a pixel window holds a point's surface neighbours as a native grid
+/// does). A point whose largest window holds fewer than k points (at silhouettes, beside open
+/// sky, or in a cell another point took) gets its exact k nearest neighbours instead.
+/// `None` when more than [`MAX_PIXEL_SHARING`] of the points share a pixel: the map is then
+/// coarser than the points, and a window would see a thinned cloud.
+pub fn estimate_pixels<F>(
+    points: &[Vec3],
+    grid: &crate::scan::Grid,
+    need_normals: bool,
+    toward: F,
+) -> Option<(Option<Vec<Vec3>>, Vec<f32>)>
+where
+    F: Fn(Vec3) -> Vec3 + Sync,
+{
+    let cells = grid.rows as usize * grid.cols as usize;
+    if grid.row.len() != points.len()
+        || shared_cells(grid, cells) > MAX_PIXEL_SHARING * points.len() as f64
+    {
+        return None;
+    }
+    let (mut normals, mut radii) = estimate_window(points, grid, need_normals, &toward, true);
+    let missing: Vec<usize> = radii
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, r)| r.is_nan().then_some(i))
+        .collect();
+    if missing.is_empty() {
+        return Some((normals, radii));
+    }
+    let k = K_RADIUS.max(K_NORMAL).min(points.len());
+    let cell_grid = (points.len() >= VOXEL_MIN_POINTS)
+        .then(|| super::knn::VoxelGrid::new(points, k))
+        .flatten();
+    let exact = Exact {
+        points,
+        grid: cell_grid.as_ref(),
+        tree: std::sync::OnceLock::new(),
+        k,
+    };
+    let fixed: Vec<(f32, Vec3)> = missing
+        .par_iter()
+        .map_init(
+            || Vec::with_capacity(1024),
+            |nb, &i| exact.point(i, nb, need_normals, &toward),
+        )
+        .collect();
+    for (&i, (r, n)) in missing.iter().zip(fixed) {
+        radii[i] = r;
+        if let Some(v) = normals.as_mut() {
+            v[i] = n;
+        }
+    }
+    Some((normals, radii))
+}
+
+/// Largest share of a scan's points that may share their map pixel with another for
+/// [`estimate_pixels`].
+pub const MAX_PIXEL_SHARING: f64 = 0.02;
+
+/// How many of the grid's points lie in a cell an earlier point already holds.
+fn shared_cells(grid: &crate::scan::Grid, cells: usize) -> f64 {
+    let mut seen = vec![0u64; cells.div_ceil(64)];
+    let mut shared = 0usize;
+    for (&r, &c) in grid.row.iter().zip(&grid.col) {
+        if r < grid.rows && c < grid.cols {
+            let cell = r as usize * grid.cols as usize + c as usize;
+            let (w, b) = (cell / 64, 1u64 << (cell % 64));
+            shared += usize::from(seen[w] & b != 0);
+            seen[w] |= b;
+        }
+    }
+    shared as f64
+}
+
+/// [`estimate_grid`]'s window search. With `image` (a grid over the sensor's image, not the
+/// scanner's own), windows are wider, points are visited cell by cell, and a point whose
+/// largest window holds fewer than k points gets a NaN radius (and no normal) for the caller
+/// to fill.
+fn estimate_window<F>(
+    points: &[Vec3],
+    grid: &crate::scan::Grid,
+    need_normals: bool,
+    toward: F,
+    image: bool,
+) -> (Option<Vec<Vec3>>, Vec<f32>)
+where
+    F: Fn(Vec3) -> Vec3 + Sync,
+{
     let n = points.len();
     let (rows, cols) = (grid.rows as i64, grid.cols as i64);
     let cells = (rows * cols) as usize;
     if n == 0 || cells == 0 || grid.row.len() != n {
         return estimate(points, need_normals, toward);
     }
-    // Positions in grid order (NaN where empty), one array per coordinate (four cells per
-    // instruction), beside the point each cell holds, so that a window row is one contiguous
-    // run instead of two dependent gathers per cell.
-    let mut at = crate::par::filled(cells, u32::MAX);
-    // One allocation for the three coordinate arrays (the allocator keeps freed memory
-    // when every view fits: fewer, larger blocks fragment its heap less).
-    let mut xyz = crate::par::filled(3 * cells, f32::NAN);
-    {
-        let (gx, rest) = xyz.split_at_mut(cells);
-        let (gy, gz) = rest.split_at_mut(cells);
-        for (i, p) in points.iter().enumerate() {
-            let c = grid.row[i] as usize * cols as usize + grid.col[i] as usize;
-            if c < cells {
-                at[c] = i as u32;
-                (gx[c], gy[c], gz[c]) = (p.x, p.y, p.z);
-            }
-        }
-    }
+    let (at, xyz) = cell_arrays(points, grid);
     let (gx, rest) = xyz.split_at(cells);
     let (gy, gz) = rest.split_at(cells);
+    // Points not stored in grid order (the pixels of a map built from loose points) are
+    // visited cell by cell, so that consecutive windows share cache lines; results go to
+    // their points afterwards.
+    let order: Option<Vec<u32>> = image.then(|| cell_order(&at, n));
     let k = K_RADIUS.min(n);
     let (mut radii, mut normals) = outputs(n, need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
@@ -210,12 +325,19 @@ where
         let mut band = Band::default();
         let mut guess = 0.0f32;
         for (o, r) in rad.iter_mut().enumerate() {
-            let i = ci * CHUNK + o;
+            let i = order
+                .as_ref()
+                .map_or(ci * CHUNK + o, |v| v[ci * CHUNK + o] as usize);
             let p = Vec3A::from(points[i]);
             let (r0, c0) = (grid.row[i] as i64, grid.col[i] as i64);
             // `m` keys, one per cell of the window, `found` of them real points.
             let (mut m, mut found);
-            let mut half = GRID_R0;
+            let (r0w, rmax) = if image {
+                (IMAGE_R0, IMAGE_RMAX)
+            } else {
+                (GRID_R0, GRID_RMAX)
+            };
+            let mut half = r0w;
             // Neighbouring points have nearly the same d_k: the pass gathers the keys within
             // ±10 % (of d_k²) of the previous one while it computes them.
             let (lo, hi) = if guess > 0.0 {
@@ -239,10 +361,14 @@ where
                     }
                     m += xs.len();
                 }
-                if found >= k || half >= GRID_RMAX {
+                if found >= k || half >= rmax {
                     break;
                 }
                 half += 2;
+            }
+            if image && found < k {
+                *r = f32::NAN;
+                continue;
             }
             let kk = k.min(found).max(1);
             // The k-th smallest key (d_k² as bits).
@@ -291,7 +417,57 @@ where
         }
     };
     run_chunks(&mut radii, &mut normals, work);
+    if let Some(order) = &order {
+        radii = to_points(&radii, order);
+        if need_normals {
+            normals = to_points(&normals, order);
+        }
+    }
     (need_normals.then_some(normals), radii)
+}
+
+/// The point each cell of `grid` holds (`u32::MAX` where none; the last of several) and the
+/// positions in grid order (NaN where empty), one array per coordinate (four cells per
+/// instruction) in one allocation, so that a window row is one contiguous run instead of two
+/// dependent gathers per cell.
+fn cell_arrays(points: &[Vec3], grid: &crate::scan::Grid) -> (Vec<u32>, Vec<f32>) {
+    let cells = grid.rows as usize * grid.cols as usize;
+    let mut at = crate::par::filled(cells, u32::MAX);
+    // One allocation for the three coordinate arrays (the allocator keeps freed memory when
+    // every view fits: fewer, larger blocks fragment its heap less).
+    let mut xyz = crate::par::filled(3 * cells, f32::NAN);
+    let (gx, rest) = xyz.split_at_mut(cells);
+    let (gy, gz) = rest.split_at_mut(cells);
+    for (i, p) in points.iter().enumerate() {
+        let c = grid.row[i] as usize * grid.cols as usize + grid.col[i] as usize;
+        if c < cells {
+            at[c] = i as u32;
+            (gx[c], gy[c], gz[c]) = (p.x, p.y, p.z);
+        }
+    }
+    (at, xyz)
+}
+
+/// The points of `at` (the point each cell holds, `u32::MAX` where none) cell by cell, then
+/// the ones no cell holds.
+fn cell_order(at: &[u32], n: usize) -> Vec<u32> {
+    let mut order = Vec::with_capacity(n);
+    let mut placed = vec![false; n];
+    for &i in at.iter().filter(|&&i| i != u32::MAX) {
+        order.push(i);
+        placed[i as usize] = true;
+    }
+    order.extend((0..n as u32).filter(|&i| !placed[i as usize]));
+    order
+}
+
+/// `v` (one value per entry of `order`) moved to the points `order` names.
+fn to_points<T: Copy + Default>(v: &[T], order: &[u32]) -> Vec<T> {
+    let mut out = vec![T::default(); v.len()];
+    for (&x, &i) in v.iter().zip(order) {
+        out[i as usize] = x;
+    }
+    out
 }
 
 /// The squared distances from `p` of the cells at `(xs, ys, zs)` as float bits into `out`,
@@ -406,11 +582,13 @@ fn nth_of_few(v: &mut [u32], r: usize) -> u32 {
 // The normals' neighbours are found among the radius's.
 const _: () = assert!(K_NORMAL <= K_RADIUS);
 
-/// Room for the values [`select`] partitions: a whole `GRID_RMAX` window.
+/// Room for the values [`select`] partitions: a whole `IMAGE_RMAX` window.
 const SCRATCH: usize = 256;
 
 /// Cells of the largest window.
-const WINDOW: usize = ((2 * GRID_RMAX + 1) * (2 * GRID_RMAX + 1)) as usize;
+const WINDOW: usize = ((2 * IMAGE_RMAX + 1) * (2 * IMAGE_RMAX + 1)) as usize;
+
+const _: () = assert!(GRID_RMAX <= IMAGE_RMAX);
 
 const _: () = assert!(WINDOW <= SCRATCH);
 

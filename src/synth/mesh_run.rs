@@ -136,6 +136,9 @@ pub fn run_mesh(opts: &SynthOptions, src: &MeshSource) -> Result<SynthSummary> {
         if !opts.normals {
             scan.normals = None;
         }
+        if !opts.grid {
+            scan.grid = None;
+        }
         let mut comments = vec![format!(
             "mvao synthetic scan: mesh {label} station {i} of {}",
             opts.stations

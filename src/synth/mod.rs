@@ -119,6 +119,8 @@ pub struct SynthOptions {
     pub registration: Registration,
     /// Write the exact normals into the scans (real scans seldom carry them).
     pub normals: bool,
+    /// Write each point's row and column (many exports drop the scanner's grid).
+    pub grid: bool,
 }
 
 /// A triangle mesh to scan: a file or a built-in scene.
@@ -178,6 +180,7 @@ impl Default for SynthOptions {
             look_at: None,
             registration: Registration::default(),
             normals: true,
+            grid: true,
         }
     }
 }
@@ -394,7 +397,7 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
         comments.extend(describe_station(st));
         comments.push(format!("range_noise_sigma_m {} seed {seed}", opts.noise));
         let path = opts.out_dir.join(&file);
-        write_scan_ply(&without_normals(&scan, opts.normals), &path, &comments)?;
+        write_scan_ply(&as_written(&scan, opts), &path, &comments)?;
         files.push(SynthFile {
             path,
             station: i,
@@ -428,13 +431,18 @@ pub fn run(opts: &SynthOptions) -> Result<SynthSummary> {
     })
 }
 
-/// `scan` as written: without its normals unless `keep`.
-fn without_normals(scan: &Scan, keep: bool) -> std::borrow::Cow<'_, Scan> {
-    if keep {
+/// `scan` as written: without its normals or its grid unless `opts` keeps them.
+fn as_written<'a>(scan: &'a Scan, opts: &SynthOptions) -> std::borrow::Cow<'a, Scan> {
+    if opts.normals && opts.grid {
         return std::borrow::Cow::Borrowed(scan);
     }
     let mut s = scan.clone();
-    s.normals = None;
+    if !opts.normals {
+        s.normals = None;
+    }
+    if !opts.grid {
+        s.grid = None;
+    }
     std::borrow::Cow::Owned(s)
 }
 
