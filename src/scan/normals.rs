@@ -206,13 +206,13 @@ where
     estimate_window(points, grid, need_normals, toward, false)
 }
 
-/// Like [`estimate_grid`], for a grid that is not the scanner's own but the pixel each point
-/// projects to in its fitted sensor map (the map of a scan without a native grid holds about
-/// one point per pixel, so a pixel window holds a point's surface neighbours as a native grid
-/// does). A point whose largest window holds fewer than k points (at silhouettes, beside open
-/// sky, or in a cell another point took) gets its exact k nearest neighbours instead.
-/// `None` when more than [`MAX_PIXEL_SHARING`] of the points share a pixel: the map is then
-/// coarser than the points, and a window would see a thinned cloud.
+/// Like [`estimate_grid`], for a grid that is not the scanner's own but each point's cell in
+/// a grid over its fitted sensor's image, with cells a little smaller than the points' spacing
+/// (so a window holds a point's surface neighbours as a native grid's does). A point whose
+/// largest window holds fewer than k points (at silhouettes, beside open sky, or in a cell
+/// another point took) gets its exact k nearest neighbours instead. `None` when more than
+/// [`MAX_PIXEL_SHARING`] of the points share a cell: the scan sampled its image unevenly, and
+/// a window would see a thinned cloud.
 pub fn estimate_pixels<F>(
     points: &[Vec3],
     grid: &crate::scan::Grid,
@@ -263,7 +263,7 @@ where
     Some((normals, radii))
 }
 
-/// Largest share of a scan's points that may share their map pixel with another for
+/// Largest share of a scan's points that may share their cell with another for
 /// [`estimate_pixels`].
 pub const MAX_PIXEL_SHARING: f64 = 0.02;
 
