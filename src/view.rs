@@ -222,7 +222,7 @@ fn sensor_grid(points: &[Vec3], proj: &Projection) -> crate::scan::Grid {
     let f = SENSOR_GRID_SCALE;
     let cols = (proj.width as f32 * f).ceil().max(1.0) as u32;
     let rows = (proj.height as f32 * f).ceil() as u32;
-    let cells: Vec<(u32, u32)> = points
+    let (row, col): (Vec<u32>, Vec<u32>) = points
         .par_iter()
         .map(|&p| {
             let Some(pr) = proj.project(p).filter(|pr| pr.depth.is_finite()) else {
@@ -243,12 +243,12 @@ fn sensor_grid(points: &[Vec3], proj: &Projection) -> crate::scan::Grid {
                 (NO_CELL, NO_CELL)
             }
         })
-        .collect();
+        .unzip();
     crate::scan::Grid {
         rows,
         cols,
-        row: cells.par_iter().map(|c| c.0).collect(),
-        col: cells.par_iter().map(|c| c.1).collect(),
+        row,
+        col,
     }
 }
 

@@ -80,12 +80,7 @@ where
     if points.is_empty() {
         return (need_normals.then(Vec::new), Vec::new());
     }
-    let exact = Exact {
-        points,
-        grid,
-        tree: std::sync::OnceLock::new(),
-        k,
-    };
+    let exact = Exact::new(points, grid, k);
     let (mut radii, mut normals) = outputs(points.len(), need_normals);
     let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
         // `(d² bits << 32) | index`, nearest first (the tree's answers in its order).
@@ -111,7 +106,16 @@ struct Exact<'a> {
     k: usize,
 }
 
-impl Exact<'_> {
+impl<'a> Exact<'a> {
+    fn new(points: &'a [Vec3], grid: Option<&'a super::knn::VoxelGrid>, k: usize) -> Self {
+        Exact {
+            points,
+            grid,
+            tree: std::sync::OnceLock::new(),
+            k,
+        }
+    }
+
     /// The radius of point `i` and, when `need_normal`, its PCA normal (else zero), from its
     /// exact k nearest neighbours. `nb` is scratch.
     fn point<F>(&self, i: usize, nb: &mut Vec<u64>, need_normal: bool, toward: &F) -> (f32, Vec3)
@@ -241,12 +245,7 @@ where
     let cell_grid = (points.len() >= VOXEL_MIN_POINTS)
         .then(|| super::knn::VoxelGrid::new(points, k))
         .flatten();
-    let exact = Exact {
-        points,
-        grid: cell_grid.as_ref(),
-        tree: std::sync::OnceLock::new(),
-        k,
-    };
+    let exact = Exact::new(points, cell_grid.as_ref(), k);
     let fixed: Vec<(f32, Vec3)> = missing
         .par_iter()
         .map_init(
