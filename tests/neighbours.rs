@@ -152,7 +152,9 @@ fn loose_scanner_points_get_a_map_without_holes_and_image_neighbours() {
         eprintln!("native: radius {ndr:.4}, normal {nda:.2}°, {nnote}");
         scan.grid = None;
         scan.normals = None;
+        scan.sensor_hint = None;
         let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+        assert_eq!(setup.projection.sensor_model(), model, "{}", setup.reason);
         let (mw, mh) = (setup.projection.width, setup.projection.height);
         let (holes, shared) = holes_and_sharing(&scan.points, &setup.projection);
         let (dr, da, note) = against_exact(&scan, &setup);
@@ -179,9 +181,8 @@ fn loose_scanner_points_get_a_map_without_holes_and_image_neighbours() {
     }
 }
 
-/// Real scans stored without their grid sample their sensor's image unevenly (different steps
-/// along rows and columns), so a grid over the image would crowd points into cells: the exact
-/// neighbours serve them, and whichever path is taken agrees with them.
+/// Real scans stored without their grid (the bunny's Cyberware scans, a 3DTK station):
+/// whichever neighbour path their map allows agrees with the exact neighbours.
 #[test]
 fn loose_real_scans_keep_exact_neighbours() {
     let mut files: Vec<_> = plys("stanford-bunny").into_iter().take(2).collect();
@@ -196,6 +197,74 @@ fn loose_real_scans_keep_exact_neighbours() {
         assert!(
             dr < 0.05 && da < 5.0,
             "{}: radius {dr}, normal {da}°",
+            p.display()
+        );
+    }
+}
+
+/// A linear scanner stored without grid: its frame's origin is not where its rays meet, so
+/// the map is orthographic, and it steps its sweep 3× its line, at 30° to the frame's axes:
+/// the map follows both steps and the direction (about one pixel per point, no holes).
+#[test]
+fn loose_linear_scans_get_an_orthographic_map_with_their_own_steps() {
+    use glam::{DVec2, DVec3, Quat};
+    use mvao::synth::{scan_scene, SceneKind, Station};
+    use mvao::testing::projection::SensorModel;
+    let st = Station::ortho(
+        DVec3::new(0.0, 0.0, 2.9),
+        0.0,
+        DVec2::new(3.0, 2.0),
+        300,
+        67,
+    );
+    let mut scan = scan_scene(&SceneKind::Room.scene(), &st, 0.0, 0, "s");
+    let turn = Quat::from_rotation_z(30f32.to_radians());
+    for p in &mut scan.points {
+        *p = turn * *p;
+    }
+    scan.grid = None;
+    scan.normals = None;
+    scan.sensor_hint = None;
+    let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+    let proj = &setup.projection;
+    let (holes, shared) = holes_and_sharing(&scan.points, proj);
+    let fill = scan.len() as f64 / (proj.width * proj.height) as f64;
+    eprintln!(
+        "{}x{} px, {fill:.3} points per pixel, holes {holes:.4}, shared {shared:.4}: {}",
+        proj.width, proj.height, setup.reason
+    );
+    assert_eq!(proj.sensor_model(), SensorModel::Ortho, "{}", setup.reason);
+    assert!(holes < 0.002, "{holes} of the pixels are one-pixel holes");
+    assert!(shared < 0.1, "{shared} of the points share a pixel");
+    // A map along the frame's axes would leave half its pixels outside the turned rectangle.
+    assert!(fill > 0.85, "{fill} points per pixel");
+}
+
+/// The bunny's scans stored without grid: a Cyberware scanner sweeps linearly, so the map is
+/// orthographic along −z, with the row step 1.45 × the column step the points show.
+#[test]
+fn loose_cyberware_scans_get_an_orthographic_map() {
+    use mvao::testing::projection::SensorModel;
+    for p in plys("stanford-bunny").into_iter().take(3) {
+        let (mut scan, _) = read_scan(&p).unwrap();
+        scan.grid = None;
+        scan.normals = None;
+        let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+        let (holes, shared) = holes_and_sharing(&scan.points, &setup.projection);
+        eprintln!(
+            "{}: holes {holes:.4}, shared {shared:.4}, {}",
+            p.display(),
+            setup.reason
+        );
+        assert_eq!(
+            setup.projection.sensor_model(),
+            SensorModel::Ortho,
+            "{}",
+            setup.reason
+        );
+        assert!(
+            shared < 0.2 && holes < 0.05,
+            "{}: holes {holes}, shared {shared}",
             p.display()
         );
     }

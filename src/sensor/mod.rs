@@ -6,10 +6,15 @@ use crate::error::{Error, Result};
 use crate::gbuffer::EMPTY;
 use crate::projection::{Model, Projection, SensorModel, Warp};
 use crate::scan::Scan;
-use glam::{DMat3, DMat4, DVec3, DVec4, Mat2, Vec2, Vec3};
+use glam::{DMat3, DMat4, DVec3, DVec4, Mat2, Vec2};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};
+
+mod loose;
+
+pub use loose::MAP_STEP_MARGIN;
+use loose::{auto_model, from_points};
 
 /// What the user asked for with `--projection`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize, Deserialize)]
@@ -41,13 +46,13 @@ pub struct SensorSetup {
 }
 
 /// Largest map side (pixels) built from ungridded points.
-const MAX_SIDE: f64 = 16384.0;
+pub(super) const MAX_SIDE: f64 = 16384.0;
 /// A map built from points has at most this many pixels per point (or [`MIN_PIXEL_CAP`]):
 /// points bunched in a few tiny patches of a wide field of view (a scanner position far from
 /// where it really was) would otherwise ask for a map of gigabytes.
-const MAX_PIXELS_PER_POINT: f64 = 4.0;
+pub(super) const MAX_PIXELS_PER_POINT: f64 = 4.0;
 /// The pixel cap for scans of few points.
-const MIN_PIXEL_CAP: f64 = 65536.0;
+pub(super) const MIN_PIXEL_CAP: f64 = 65536.0;
 /// A native grid with more cells per valid point than this, and more than
 /// [`MIN_GRID_CELL_CAP`] cells, is resampled instead (a header declaring a grid far larger
 /// than its points). A scan that is mostly sky is sparse too, so the bound is loose.
@@ -137,13 +142,14 @@ pub fn setup(scan: &Scan, choice: ProjectionChoice) -> Result<SensorSetup> {
     } else {
         "given by --projection"
     };
-    let (model, why) = match choice {
+    let fixed = |model| (model, from_points(&scan.points, model), given.to_string());
+    let (model, projection, why) = match choice {
         ProjectionChoice::Auto => auto_model(&scan.points),
-        ProjectionChoice::Equirect => (SensorModel::Equirect, given.to_string()),
-        ProjectionChoice::Perspective => (SensorModel::Perspective, given.to_string()),
-        ProjectionChoice::Ortho => (SensorModel::Ortho, given.to_string()),
+        ProjectionChoice::Equirect => fixed(SensorModel::Equirect),
+        ProjectionChoice::Perspective => fixed(SensorModel::Perspective),
+        ProjectionChoice::Ortho => fixed(SensorModel::Ortho),
     };
-    let projection = from_points(&scan.points, model)
+    let projection = projection
         .ok_or_else(|| Error::scan(&scan.name, format!("no {model} map fits its points")))?;
     let gridnote = if sparse {
         "native grid has far more cells than points, so it is resampled; "
@@ -181,13 +187,13 @@ fn is_full_circle(p: &Projection) -> bool {
 }
 
 /// Every `step`-th point, so fits see at most [`FIT_SAMPLE`] points.
-fn sample_indices(n: usize) -> impl Iterator<Item = usize> {
+pub(super) fn sample_indices(n: usize) -> impl Iterator<Item = usize> {
     let step = n.div_ceil(FIT_SAMPLE).max(1);
     (0..n).step_by(step)
 }
 
 /// An orthonormal local → sensor rotation whose third row is `axis`.
-fn frame_with_axis(axis: DVec3) -> DMat3 {
+pub(super) fn frame_with_axis(axis: DVec3) -> DMat3 {
     let z = axis.normalize();
     let helper = if z.z.abs() < 0.9 { DVec3::Z } else { DVec3::X };
     let x = helper.cross(z).normalize();
@@ -607,7 +613,7 @@ fn fit_ortho(pts: &[DVec3], rc: &[(f64, f64)]) -> Option<Fit> {
 /// An orthographic sensor has no position; its "depth" is measured from a plane placed one
 /// scan extent beyond the nearest point, so depths are positive and depth ratios (the
 /// border field's relative Laplacian) are well defined.
-fn ortho_depth0(pts: &[DVec3], toward: DVec3) -> f64 {
+pub(super) fn ortho_depth0(pts: &[DVec3], toward: DVec3) -> f64 {
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     let mut top = f64::NEG_INFINITY;
     for p in pts {
@@ -632,7 +638,7 @@ fn orient_toward(v: DVec3) -> Option<DVec3> {
 }
 
 /// Wraps an angle into (-π, π] in f64.
-fn wrap_pi(a: f64) -> f64 {
+pub(super) fn wrap_pi(a: f64) -> f64 {
     let mut r = a % TAU;
     if r > PI {
         r -= TAU;
@@ -687,7 +693,7 @@ fn grid_middle_azimuth(ang: &[(f64, f64)], xs: &[f64]) -> f64 {
 }
 
 /// The azimuth opposite the largest gap in `az` (so the map's seam falls where no data is).
-fn seam_opposite(az: impl Iterator<Item = f64>) -> f64 {
+pub(super) fn seam_opposite(az: impl Iterator<Item = f64>) -> f64 {
     const BINS: usize = 1440;
     let mut hist = [false; BINS];
     for a in az {
@@ -715,217 +721,6 @@ fn seam_opposite(az: impl Iterator<Item = f64>) -> f64 {
     }
     let mid = (best_start as f64 + best_len as f64 / 2.0) / BINS as f64 * TAU - PI;
     wrap_pi(mid + PI)
-}
-
-/// Chooses equirect or perspective for an ungridded scan from the spread of its point
-/// directions around the origin.
-fn auto_model(points: &[Vec3]) -> (SensorModel, String) {
-    let idx: Vec<usize> = sample_indices(points.len()).collect();
-    let dirs: Vec<DVec3> = idx
-        .iter()
-        .filter_map(|&i| points[i].as_dvec3().try_normalize())
-        .collect();
-    let mean = dirs.iter().sum::<DVec3>();
-    let Some(m) = mean.try_normalize() else {
-        return (
-            SensorModel::Equirect,
-            "no grid; point directions surround the origin".into(),
-        );
-    };
-    let mut ang: Vec<f64> = dirs
-        .iter()
-        .map(|d| d.dot(m).clamp(-1.0, 1.0).acos())
-        .collect();
-    ang.sort_by(f64::total_cmp);
-    let q = ang[((ang.len() as f64 * 0.99) as usize).min(ang.len() - 1)].to_degrees();
-    if q <= 60.0 {
-        (
-            SensorModel::Perspective,
-            format!(
-                "no grid; 99 % of point directions lie within {q:.0}° of their mean, a camera cone"
-            ),
-        )
-    } else {
-        (
-            SensorModel::Equirect,
-            format!("no grid; point directions spread {q:.0}° from their mean, wider than a camera (60°)"),
-        )
-    }
-}
-
-/// Angular (or linear) step so that the occupied part of the map has about one pixel per
-/// point. A scanner samples evenly in its own coordinates `uv` (azimuth and elevation, or image
-/// plane), so the occupied area is counted there, unweighted, on coarse bins. A bin the points'
-/// outline crosses counts whole, which overstates the area by about half a bin per unit of
-/// outline: counted at two bin sizes, the overstatement is extrapolated away (a map too
-/// coarse puts two points in a pixel and loses one; too fine, it leaves holes in surfaces).
-fn step_from_occupancy(uv: &[(f64, f64)], n: usize, lo: (f64, f64), hi: (f64, f64)) -> f64 {
-    let span = ((hi.0 - lo.0).max(1e-12), (hi.1 - lo.1).max(1e-12));
-    // Aim at ~16 sample points per occupied bin (an even count, for the halved grid).
-    let nb = 2 * ((uv.len() as f64 / 64.0).sqrt().clamp(2.0, 256.0) as usize);
-    let mut occ = vec![false; nb * nb];
-    for &(u, v) in uv {
-        let i = (((u - lo.0) / span.0 * nb as f64) as usize).min(nb - 1);
-        let j = (((v - lo.1) / span.1 * nb as f64) as usize).min(nb - 1);
-        occ[j * nb + i] = true;
-    }
-    let fine = occ.iter().filter(|&&o| o).count() as f64;
-    let half = nb / 2;
-    let coarse = (0..half * half)
-        .filter(|&c| {
-            let (i, j) = (2 * (c % half), 2 * (c / half));
-            occ[j * nb + i]
-                || occ[j * nb + i + 1]
-                || occ[(j + 1) * nb + i]
-                || occ[(j + 1) * nb + i + 1]
-        })
-        .count() as f64;
-    // Area in fine bins: the outline's share doubles with the bin side.
-    let bins = (2.0 * fine - 4.0 * coarse).clamp(0.5 * fine, fine);
-    let cell = span.0 / nb as f64 * span.1 / nb as f64;
-    (bins * cell / n.max(1) as f64).sqrt() * MAP_STEP_MARGIN
-}
-
-/// A map built from loose points is this much coarser than the points' spacing as estimated.
-/// Two points in one pixel cost little (each reads the pixel's AO); a surface pixel left
-/// empty is a hole that the SSAO and the merge's border weight take for a depth edge. The
-/// estimate is good to a few per cent: on three mesh scenes stripped of their grids
-/// (`docs/design.md`), maps 3 % finer than the spacing raised the merged e_A by up to 45 %,
-/// 3 % coarser came within 0–7 % of the native grid.
-pub const MAP_STEP_MARGIN: f64 = 1.03;
-
-/// Builds a map of the given model from ungridded points (about one pixel per point).
-pub fn from_points(points: &[Vec3], model: SensorModel) -> Option<Projection> {
-    let idx: Vec<usize> = sample_indices(points.len()).collect();
-    let pts: Vec<DVec3> = idx
-        .iter()
-        .map(|&i| points[i].as_dvec3())
-        .filter(|p| p.length() > 0.0)
-        .collect();
-    if pts.is_empty() {
-        return None;
-    }
-    let n = points.len();
-    let cap = (MAX_PIXELS_PER_POINT * n as f64).max(MIN_PIXEL_CAP);
-    // The step at which a span of `a × b` (model units) holds `cap` pixels.
-    let capped = |a: f64, b: f64| (a.max(0.0) * b.max(0.0) / cap).sqrt();
-    match model {
-        SensorModel::Equirect => {
-            let rot = DMat3::IDENTITY;
-            let az_ref = seam_opposite(pts.iter().map(|p| p.y.atan2(p.x)));
-            let ae: Vec<(f64, f64)> = pts
-                .iter()
-                .map(|p| {
-                    let el = p.z.atan2(p.x.hypot(p.y));
-                    (wrap_pi(p.y.atan2(p.x) - az_ref), el)
-                })
-                .collect();
-            let (lo, hi) = bounds2(&ae);
-            let step = step_from_occupancy(&ae, n, lo, hi)
-                .max((hi.0 - lo.0) / MAX_SIDE)
-                .max((hi.1 - lo.1) / (MAX_SIDE / 2.0))
-                .max(capped(TAU, hi.1 - lo.1))
-                .max(1e-6);
-            let full = hi.0 - lo.0 > TAU - 3.0 * step.max(TAU / 720.0);
-            let (width, ox) = if full {
-                let w = (TAU / step).ceil();
-                (w, w / 2.0)
-            } else {
-                ((hi.0 - lo.0) / step + 1.0, -lo.0 / step + 0.5)
-            };
-            let height = (hi.1 - lo.1) / step + 1.0;
-            Some(Projection {
-                model: Model::Equirect {
-                    rot: rot.as_mat3(),
-                    az_ref: az_ref as f32,
-                    sx: (if full { width / TAU } else { 1.0 / step }) as f32,
-                    ox: ox as f32,
-                    sy: (-1.0 / step) as f32,
-                    oy: (hi.1 / step + 0.5) as f32,
-                },
-                width: width.ceil() as usize,
-                height: height.ceil() as usize,
-                wrap_x: full,
-                warp_x: None,
-                warp_y: None,
-            })
-        }
-        SensorModel::Perspective => {
-            let axis = pts
-                .iter()
-                .map(|p| p.normalize())
-                .sum::<DVec3>()
-                .try_normalize()?;
-            let rot = frame_with_axis(axis);
-            let uv: Vec<(f64, f64)> = pts
-                .iter()
-                .filter_map(|p| {
-                    let s = rot * *p;
-                    (s.z > 0.0).then(|| (s.x / s.z, s.y / s.z))
-                })
-                .collect();
-            if uv.is_empty() {
-                return None;
-            }
-            let (lo, hi) = bounds2(&uv);
-            let step = step_from_occupancy(&uv, n, lo, hi)
-                .max((hi.0 - lo.0) / MAX_SIDE)
-                .max((hi.1 - lo.1) / MAX_SIDE)
-                .max(capped(hi.0 - lo.0, hi.1 - lo.1))
-                .max(1e-9);
-            Some(Projection {
-                model: Model::Perspective {
-                    rot: rot.as_mat3(),
-                    a: Mat2::from_diagonal(Vec2::splat((1.0 / step) as f32)),
-                    c: Vec2::new((-lo.0 / step + 0.5) as f32, (-lo.1 / step + 0.5) as f32),
-                },
-                width: ((hi.0 - lo.0) / step + 1.0).ceil() as usize,
-                height: ((hi.1 - lo.1) / step + 1.0).ceil() as usize,
-                wrap_x: false,
-                warp_x: None,
-                warp_y: None,
-            })
-        }
-        SensorModel::Ortho => {
-            let xy: Vec<(f64, f64)> = points
-                .iter()
-                .step_by(n.div_ceil(FIT_SAMPLE).max(1))
-                .map(|p| (p.x as f64, -(p.y as f64)))
-                .collect();
-            let (lo, hi) = bounds2(&xy);
-            let step = step_from_occupancy(&xy, n, lo, hi)
-                .max((hi.0 - lo.0) / MAX_SIDE)
-                .max((hi.1 - lo.1) / MAX_SIDE)
-                .max(capped(hi.0 - lo.0, hi.1 - lo.1))
-                .max(1e-9);
-            let depth0 = ortho_depth0(&pts, DVec3::Z) as f32;
-            Some(Projection {
-                model: Model::Ortho {
-                    a: Vec3::new((1.0 / step) as f32, 0.0, 0.0),
-                    a0: (-lo.0 / step + 0.5) as f32,
-                    b: Vec3::new(0.0, (-1.0 / step) as f32, 0.0),
-                    b0: (-lo.1 / step + 0.5) as f32,
-                    toward: Vec3::Z,
-                    depth0,
-                },
-                width: ((hi.0 - lo.0) / step + 1.0).ceil() as usize,
-                height: ((hi.1 - lo.1) / step + 1.0).ceil() as usize,
-                wrap_x: false,
-                warp_x: None,
-                warp_y: None,
-            })
-        }
-    }
-}
-
-fn bounds2(v: &[(f64, f64)]) -> ((f64, f64), (f64, f64)) {
-    let mut lo = (f64::INFINITY, f64::INFINITY);
-    let mut hi = (f64::NEG_INFINITY, f64::NEG_INFINITY);
-    for &(a, b) in v {
-        lo = (lo.0.min(a), lo.1.min(b));
-        hi = (hi.0.max(a), hi.1.max(b));
-    }
-    (lo, hi)
 }
 
 /// The sensor of a local projection seen from another scan: the homogeneous sensor point
