@@ -269,3 +269,34 @@ fn loose_cyberware_scans_get_an_orthographic_map() {
         );
     }
 }
+
+/// A station written with its pole along local y (as 3DTK writes them) and without grid: the
+/// map takes the pole its even sampling shows, so it is as clean as with the pole along z.
+#[test]
+fn loose_stations_find_their_pole() {
+    use glam::Quat;
+    use mvao::synth::{scan_scene, station_layout, SceneKind};
+    use mvao::testing::projection::SensorModel;
+    let kind = SceneKind::Suite { rooms: 2 };
+    let st = station_layout(kind, SensorModel::Equirect, 4, 720, 360)[1];
+    let mut scan = scan_scene(&kind.scene(), &st, 0.002, 0, "s");
+    let z_to_y = Quat::from_rotation_x(-90f32.to_radians());
+    for p in &mut scan.points {
+        *p = z_to_y * *p;
+    }
+    scan.grid = None;
+    scan.normals = None;
+    scan.sensor_hint = None;
+    let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+    let proj = &setup.projection;
+    let (holes, shared) = holes_and_sharing(&scan.points, proj);
+    eprintln!(
+        "{}x{} px, holes {holes:.4}, shared {shared:.4}: {}",
+        proj.width, proj.height, setup.reason
+    );
+    assert_eq!(proj.sensor_model(), SensorModel::Equirect);
+    let scale = 720.0 / proj.width as f64;
+    assert!((1.0..1.07).contains(&scale), "map {} wide", proj.width);
+    assert!(holes < 0.002, "{holes} of the pixels are one-pixel holes");
+    assert!(shared < 0.1, "{shared} of the points share a pixel");
+}

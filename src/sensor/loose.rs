@@ -6,7 +6,7 @@ use super::{
     MAX_SIDE, MIN_PIXEL_CAP,
 };
 use crate::projection::{Model, Projection, SensorModel};
-use glam::{DVec3, Mat2, Vec2, Vec3};
+use glam::{DMat3, DVec3, Mat2, Vec2, Vec3};
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_PI_2, TAU};
 
@@ -176,9 +176,13 @@ pub(super) fn from_points(points: &[Vec3], model: SensorModel) -> Option<Project
     let n = points.len();
     match model {
         SensorModel::Equirect => {
-            let az_ref = seam_opposite(pts.iter().map(|p| p.y.atan2(p.x)));
+            let rot = equirect_pole(&pts);
+            let az_ref = seam_opposite(pts.iter().map(|p| {
+                let q = rot * *p;
+                q.y.atan2(q.x)
+            }));
             let uv_of = |p: Vec3| {
-                let p = p.as_dvec3();
+                let p = rot * p.as_dvec3();
                 (p.length() > 0.0).then(|| {
                     let el = p.z.atan2(p.x.hypot(p.y));
                     (wrap_pi(p.y.atan2(p.x) - az_ref), el)
@@ -201,7 +205,7 @@ pub(super) fn from_points(points: &[Vec3], model: SensorModel) -> Option<Project
             };
             Some(Projection {
                 model: Model::Equirect {
-                    rot: glam::Mat3::IDENTITY,
+                    rot: rot.as_mat3(),
                     az_ref: az_ref as f32,
                     sx: (if full { width / TAU } else { 1.0 / su }) as f32,
                     ox: ox as f32,
@@ -282,6 +286,63 @@ pub(super) fn from_points(points: &[Vec3], model: SensorModel) -> Option<Project
             })
         }
     }
+}
+
+/// Local → sensor rotation of an ungridded equirectangular scan: the pole along local z,
+/// unless another axis makes the sampling far more even. A scanner steps evenly in its own
+/// azimuth and elevation, so the sample's counts over the occupied inner bins of an
+/// azimuth × elevation histogram vary little about the true pole (coefficient of variation
+/// 0.00–0.10 on synthetic stations and the 3DTK ones, whose pole is local y) and by 0.8–1.5
+/// about a wrong one.
+fn equirect_pole(pts: &[DVec3]) -> DMat3 {
+    let unevenness = |rot: DMat3| {
+        let nb = 2 * ((pts.len() as f64 / 64.0).sqrt().clamp(2.0, 256.0) as usize);
+        let ae: Vec<(f64, f64)> = pts
+            .iter()
+            .map(|p| {
+                let q = rot * *p;
+                (q.y.atan2(q.x), q.z.atan2(q.x.hypot(q.y)))
+            })
+            .collect();
+        let (lo, hi) = bounds2(&ae);
+        let bin = |x: f64, lo: f64, hi: f64| {
+            (((x - lo) / (hi - lo).max(1e-12) * nb as f64) as usize).min(nb - 1)
+        };
+        let mut count = vec![0u32; nb * nb];
+        for &(a, e) in &ae {
+            count[bin(e, lo.1, hi.1) * nb + bin(a, lo.0, hi.0)] += 1;
+        }
+        let occupied = |i: usize, j: usize| count[j * nb + i % nb] > 0;
+        let (mut n, mut sum, mut sq) = (0.0, 0.0, 0.0);
+        for j in 1..nb - 1 {
+            for i in 0..nb {
+                let inner = occupied(i, j)
+                    && occupied(i + 1, j)
+                    && occupied(i + nb - 1, j)
+                    && occupied(i, j - 1)
+                    && occupied(i, j + 1);
+                if inner {
+                    let c = f64::from(count[j * nb + i]);
+                    (n, sum, sq) = (n + 1.0, sum + c, sq + c * c);
+                }
+            }
+        }
+        if n < 16.0 {
+            return f64::INFINITY;
+        }
+        let mean = sum / n;
+        ((sq / n - mean * mean).max(0.0)).sqrt() / mean
+    };
+    let z = unevenness(DMat3::IDENTITY);
+    [DVec3::Y, DVec3::X]
+        .into_iter()
+        .map(|axis| {
+            let rot = frame_with_axis(axis);
+            (unevenness(rot), rot)
+        })
+        .filter(|&(u, _)| u < 0.5 * z && u < z - 0.2)
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map_or(DMat3::IDENTITY, |(_, rot)| rot)
 }
 
 /// Pixel cap of a map built from `n` points.
