@@ -2,8 +2,8 @@
 //! about one pixel per point.
 
 use super::{
-    frame_with_axis, ortho_depth0, sample_indices, seam_opposite, wrap_pi, MAX_PIXELS_PER_POINT,
-    MAX_SIDE, MIN_PIXEL_CAP,
+    azimuth_elevation, frame_with_axis, ortho_depth0, sample_indices, seam_opposite, wrap_pi,
+    MAX_PIXELS_PER_POINT, MAX_SIDE, MIN_PIXEL_CAP,
 };
 use crate::projection::{Model, Projection, SensorModel};
 use glam::{DMat3, DVec3, Mat2, Vec2, Vec3};
@@ -177,20 +177,17 @@ pub(super) fn from_points(points: &[Vec3], model: SensorModel) -> Option<Project
     match model {
         SensorModel::Equirect => {
             let rot = equirect_pole(&pts);
-            let az_ref = seam_opposite(pts.iter().map(|p| {
-                let q = rot * *p;
-                q.y.atan2(q.x)
-            }));
+            let az_ref = seam_opposite(pts.iter().map(|p| azimuth_elevation(rot * *p).0));
             let uv_of = |p: Vec3| {
-                let p = rot * p.as_dvec3();
-                (p.length() > 0.0).then(|| {
-                    let el = p.z.atan2(p.x.hypot(p.y));
-                    (wrap_pi(p.y.atan2(p.x) - az_ref), el)
+                let q = rot * p.as_dvec3();
+                (q.length() > 0.0).then(|| {
+                    let (az, el) = azimuth_elevation(q);
+                    (wrap_pi(az - az_ref), el)
                 })
             };
             let ae: Vec<(f64, f64)> = pts.iter().filter_map(|p| uv_of(p.as_vec3())).collect();
             // Azimuth and elevation are the scanner's own axes: no rotation.
-            let grid = Sampling::measure(points, &ae, uv_of, false, true).fit(
+            let grid = Sampling::measure(points, ae, uv_of, false, true).fit(
                 TAU,
                 (MAX_SIDE, MAX_SIDE / 2.0),
                 cap(n),
@@ -234,7 +231,7 @@ pub(super) fn from_points(points: &[Vec3], model: SensorModel) -> Option<Project
             if uv.is_empty() {
                 return None;
             }
-            let g = Sampling::measure(points, &uv, uv_of, true, true).fit(
+            let g = Sampling::measure(points, uv, uv_of, true, true).fit(
                 0.0,
                 (MAX_SIDE, MAX_SIDE),
                 cap(n),
@@ -259,7 +256,7 @@ pub(super) fn from_points(points: &[Vec3], model: SensorModel) -> Option<Project
         SensorModel::Ortho => {
             let uv_of = |p: Vec3| Some((p.x as f64, -(p.y as f64)));
             let xy: Vec<(f64, f64)> = pts.iter().filter_map(|p| uv_of(p.as_vec3())).collect();
-            let g = Sampling::measure(points, &xy, uv_of, true, false).fit(
+            let g = Sampling::measure(points, xy, uv_of, true, false).fit(
                 0.0,
                 (MAX_SIDE, MAX_SIDE),
                 cap(n),
@@ -297,13 +294,7 @@ pub(super) fn from_points(points: &[Vec3], model: SensorModel) -> Option<Project
 fn equirect_pole(pts: &[DVec3]) -> DMat3 {
     let unevenness = |rot: DMat3| {
         let nb = 2 * ((pts.len() as f64 / 64.0).sqrt().clamp(2.0, 256.0) as usize);
-        let ae: Vec<(f64, f64)> = pts
-            .iter()
-            .map(|p| {
-                let q = rot * *p;
-                (q.y.atan2(q.x), q.z.atan2(q.x.hypot(q.y)))
-            })
-            .collect();
+        let ae: Vec<(f64, f64)> = pts.iter().map(|p| azimuth_elevation(rot * *p)).collect();
         let (lo, hi) = bounds2(&ae);
         let bin = |x: f64, lo: f64, hi: f64| {
             (((x - lo) / (hi - lo).max(1e-12) * nb as f64) as usize).min(nb - 1)
@@ -398,15 +389,15 @@ impl Sampling {
     /// a unit image plane), so a cone around the window's direction holds the window.
     fn measure(
         points: &[Vec3],
-        uv: &[(f64, f64)],
+        uv: Vec<(f64, f64)>,
         uv_of: impl Fn(Vec3) -> Option<(f64, f64)> + Sync,
         rotate: bool,
         angular: bool,
     ) -> Sampling {
-        let (lo, hi) = bounds2(uv);
-        let step = step_from_occupancy(uv, points.len(), lo, hi);
+        let (lo, hi) = bounds2(&uv);
+        let step = step_from_occupancy(&uv, points.len(), lo, hi);
         let (mut ratio, mut theta) =
-            neighbour_steps(points, uv, &uv_of, step, angular).unwrap_or((1.0, 0.0));
+            neighbour_steps(points, &uv, &uv_of, step, angular).unwrap_or((1.0, 0.0));
         if !rotate {
             // Snap to the nearer axis; a sampling oblique to fixed axes stays isotropic.
             let snapped = (theta / FRAC_PI_2).round() * FRAC_PI_2;
@@ -419,7 +410,7 @@ impl Sampling {
             (ratio, theta) = (1.0, 0.0);
         }
         Sampling {
-            uv: uv.to_vec(),
+            uv,
             step,
             ratio,
             theta,

@@ -430,17 +430,16 @@ fn fit_grid(scan: &Scan, choice: ProjectionChoice) -> Vec<Fit> {
     fits
 }
 
+/// Azimuth (from +x toward +y) and elevation of a sensor-frame point whose pole is z.
+pub(super) fn azimuth_elevation(s: DVec3) -> (f64, f64) {
+    (s.y.atan2(s.x), s.z.atan2(s.x.hypot(s.y)))
+}
+
 /// Equirect fit with pole `axis`: x from azimuth, y from elevation, each a 1-D linear map of
 /// row or column (both assignments tried).
 fn fit_equirect(pts: &[DVec3], rc: &[(f64, f64)], axis: DVec3, dims: (u32, u32)) -> Vec<Fit> {
     let rot = frame_with_axis(axis);
-    let ang: Vec<(f64, f64)> = pts
-        .iter()
-        .map(|p| {
-            let s = rot * *p;
-            (s.y.atan2(s.x), s.z.atan2(s.x.hypot(s.y)))
-        })
-        .collect();
+    let ang: Vec<(f64, f64)> = pts.iter().map(|p| azimuth_elevation(rot * *p)).collect();
     let mut out = Vec::new();
     for swap in [false, true] {
         // The grid's middle (in the azimuth index) maps to azimuth 0, so the ±π seam falls at
