@@ -4,7 +4,6 @@
 
 mod common;
 
-use glam::DMat4;
 use mvao::stream::synth::{room_trajectory, synth_stream, StreamSynthOptions, SynthStream};
 use mvao::stream::{Integrator, StreamParams};
 use mvao::synth::Scene;
@@ -35,53 +34,8 @@ fn params(voxel: f64, edge: f32, history: bool, scale: usize) -> StreamParams {
 
 /// Integrates the frames in `order`: (voxel e_A, mean single-frame e_A, voxels scored).
 fn score(s: &SynthStream, p: StreamParams, order: &[usize]) -> (f64, f64, usize) {
-    let (v, _, single, n) = score2(s, p, order);
-    (v, single, n)
-}
-
-/// [`score`] with also the voxel e_A weighted by each voxel's number of integrated pixels
-/// (the population the single-frame e_A averages over).
-fn score2(s: &SynthStream, p: StreamParams, order: &[usize]) -> (f64, f64, f64, usize) {
-    let mut it = Integrator::new(p, s.intrinsics);
-    // A single frame's SSAO is on its own depth, whatever the history setting.
-    let mut alone = Integrator::new(
-        StreamParams {
-            history: false,
-            ..p
-        },
-        s.intrinsics,
-    );
-    let mut frame_e = Vec::new();
-    for &i in order {
-        let pose: DMat4 = s.poses[i];
-        let (geo, ao, _) = alone.frame_ssao(&s.frames[i], pose);
-        let (mut sad, mut n) = (0.0f64, 0usize);
-        for (k, a) in ao.iter().enumerate() {
-            let t = s.truth[i][k];
-            if let (Some(a), true, true) = (a, t.is_finite(), geo.is_valid(k)) {
-                sad += (a - t).abs() as f64;
-                n += 1;
-            }
-        }
-        if n > 0 {
-            frame_e.push(sad / n as f64);
-        }
-        it.add_frame_truth(&s.frames[i], pose, Some(&s.truth[i]));
-    }
-    let (mut sad, mut n, mut wsad, mut wn) = (0.0f64, 0usize, 0.0f64, 0u64);
-    for vp in it.grid.points() {
-        if let Some(&(sum, count)) = it.truth.get(&vp.key) {
-            if count > 0 {
-                let e = (vp.ao as f64 - sum / count as f64).abs();
-                sad += e;
-                n += 1;
-                wsad += e * count as f64;
-                wn += count;
-            }
-        }
-    }
-    let single = frame_e.iter().sum::<f64>() / frame_e.len().max(1) as f64;
-    (sad / n.max(1) as f64, wsad / wn.max(1) as f64, single, n)
+    let r = mvao::stream::score::score(s, p, order);
+    (r.voxel, r.single, r.voxels)
 }
 
 /// See issue 33: voxel e_A ≤ 0.7 × the mean single-frame e_A on a noisy room stream of
@@ -94,14 +48,20 @@ fn issue_33_voxels_beat_single_frames_and_history_is_order_stable() {
     let (voxel, single, n) = score(&s, params(0.05, 0.1, false, 1), &order);
     eprintln!("history off: voxel e_A {voxel:.4}, single-frame e_A {single:.4}, {n} voxels");
     assert!(n > 2000, "{n} voxels");
-    let (hv, hpix, hs, _) = score2(&s, params(0.05, 0.1, true, 1), &order);
-    eprintln!("history on: voxel e_A per pixel {hpix:.4}");
+    let h = mvao::stream::score::score(&s, params(0.05, 0.1, true, 1), &order);
     let (hr, _, _) = score(&s, params(0.05, 0.1, true, 1), &rev);
-    eprintln!("history on: voxel e_A {hv:.4} (reversed {hr:.4}), single-frame e_A {hs:.4}");
-    // The voxel error over the integrated pixels, the population the single-frame error
-    // averages over (per voxel, far and thinly seen surfaces count as much as near ones).
-    assert!(hpix <= 0.7 * hs, "voxel {hpix} (per pixel) vs single {hs}");
-    assert!((hv - hr).abs() <= 0.01, "{hv} vs reversed {hr}");
+    eprintln!(
+        "history on: voxel e_A {:.4} (reversed {hr:.4}, per pixel {:.4}), single-frame e_A {:.4}",
+        h.voxel, h.voxel_per_pixel, h.single
+    );
+    // Per voxel, far and thinly seen surfaces count as much as near ones.
+    assert!(
+        h.voxel <= 0.7 * h.single,
+        "voxel {} vs single {}",
+        h.voxel,
+        h.single
+    );
+    assert!((h.voxel - hr).abs() <= 0.01, "{} vs reversed {hr}", h.voxel);
 }
 
 /// See issue 33: SSAO at a half and a quarter of the resolution (the default) stays within
@@ -161,7 +121,8 @@ fn issue_33_a_stopped_stream_resumes_from_its_checkpoint() {
         frames_done: 3,
         settings,
     };
-    write_checkpoint(&c.out_dir.join("stream.checkpoint"), &it.grid, head).unwrap();
+    let ck = c.out_dir.join("stream.checkpoint");
+    write_checkpoint(&ck, &it.grid, it.volume.as_ref(), head).unwrap();
     let resumed = mvao::stream::run(&c, &mvao::progress::Silent).unwrap();
     assert_eq!(resumed.resumed_at, Some(3));
     assert_eq!(resumed.frames_this_run, 5);
@@ -274,7 +235,8 @@ fn issue_33_a_mesh_scene_stream_of_exact_depth() {
         .flatten()
         .all(|t| t.is_nan() || (0.0..=1.0).contains(t)));
     let order: Vec<usize> = (0..frames).collect();
-    let (_, pix, single, n) = score2(&s, params(0.05, 0.1, false, 1), &order);
+    let r = mvao::stream::score::score(&s, params(0.05, 0.1, false, 1), &order);
+    let (pix, single, n) = (r.voxel_per_pixel, r.single, r.voxels);
     eprintln!("vault: voxel e_A per pixel {pix:.4}, single-frame e_A {single:.4}, {n} voxels");
     assert!(n > 5000, "{n} voxels");
     assert!(

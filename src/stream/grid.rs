@@ -4,6 +4,7 @@
 //! first frames: every cell within ±2²⁰ voxels of the world origin has a key (±10 km at 1 cm).
 //! Memory is one table entry per occupied voxel; the checkpoint is the table on disk.
 
+use super::tsdf::Tsdf;
 use crate::error::{Error, Result};
 use glam::{DVec3, Vec3};
 use std::collections::HashMap;
@@ -267,7 +268,9 @@ impl VoxelGrid {
     }
 }
 
-const MAGIC: &[u8; 8] = b"MVAOGRD1";
+const MAGIC: &[u8; 8] = b"MVAOGRD2";
+/// Checkpoints of the first layout: the grid without a history volume.
+const MAGIC_V1: &[u8; 8] = b"MVAOGRD1";
 
 /// What a checkpoint holds besides the grid: how far the stream got and for which settings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -278,8 +281,14 @@ pub struct CheckpointHead {
     pub settings: u64,
 }
 
-/// Writes the grid and `head` to `path` (a temporary file, then renamed over it).
-pub fn write_checkpoint(path: &Path, grid: &VoxelGrid, head: CheckpointHead) -> Result<()> {
+/// Writes the grid, the history volume if any, and `head` to `path` (a temporary file, then
+/// renamed over it).
+pub fn write_checkpoint(
+    path: &Path,
+    grid: &VoxelGrid,
+    volume: Option<&Tsdf>,
+    head: CheckpointHead,
+) -> Result<()> {
     crate::io::atomic::write_atomic(path, |out| {
         let mut w = std::io::BufWriter::new(out);
         w.write_all(MAGIC)?;
@@ -303,18 +312,31 @@ pub fn write_checkpoint(path: &Path, grid: &VoxelGrid, head: CheckpointHead) -> 
                 w.write_all(&v.to_le_bytes())?;
             }
         }
+        match volume {
+            Some(v) => {
+                w.write_all(&[1])?;
+                v.write_to(&mut w)?;
+            }
+            None => w.write_all(&[0])?,
+        }
         w.flush()
     })
 }
 
-/// Reads a checkpoint written by [`write_checkpoint`].
-pub fn read_checkpoint(path: &Path) -> Result<(VoxelGrid, CheckpointHead)> {
+/// What [`read_checkpoint`] returns: the grid, the history volume (if the run had one) and
+/// the head.
+pub type Checkpoint = (VoxelGrid, Option<Tsdf>, CheckpointHead);
+
+/// Reads a checkpoint written by [`write_checkpoint`] (or by the first layout, which has no
+/// history volume).
+pub fn read_checkpoint(path: &Path) -> Result<Checkpoint> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let bad = || Error::format(path, "not an mvao stream checkpoint, or truncated");
     let mut r: &[u8] = &bytes;
     let mut magic = [0u8; 8];
     r.read_exact(&mut magic).map_err(|_| bad())?;
-    if &magic != MAGIC {
+    let v1 = &magic == MAGIC_V1;
+    if &magic != MAGIC && !v1 {
         return Err(bad());
     }
     let mut u64s = [0u64; 5];
@@ -325,12 +347,15 @@ pub fn read_checkpoint(path: &Path) -> Result<(VoxelGrid, CheckpointHead)> {
     }
     let [frames_done, settings, voxel, out_of_range, n] = u64s;
     const ENTRY: usize = 8 * 3 + 4 * 6;
-    if (r.len() as u64) != n.saturating_mul(ENTRY as u64) {
+    let grid_bytes = n.saturating_mul(ENTRY as u64);
+    let rest = (r.len() as u64).checked_sub(grid_bytes).ok_or_else(bad)?;
+    if v1 && rest != 0 {
         return Err(bad());
     }
+    let (entries, mut tail) = r.split_at(grid_bytes as usize);
     let mut grid = VoxelGrid::new(f64::from_bits(voxel));
     grid.out_of_range = out_of_range;
-    for e in r.chunks_exact(ENTRY) {
+    for e in entries.chunks_exact(ENTRY) {
         let u = |i: usize| {
             let mut b = [0u8; 8];
             b.copy_from_slice(&e[i..i + 8]);
@@ -349,8 +374,23 @@ pub fn read_checkpoint(path: &Path) -> Result<(VoxelGrid, CheckpointHead)> {
         };
         grid.cells[shard(u(0))].insert(u(0), c);
     }
+    let volume = if v1 {
+        None
+    } else {
+        let mut flag = [0u8; 1];
+        tail.read_exact(&mut flag).map_err(|_| bad())?;
+        match flag[0] {
+            0 => None,
+            1 => Some(Tsdf::read_from(&mut tail).ok_or_else(bad)?),
+            _ => return Err(bad()),
+        }
+    };
+    if !tail.is_empty() {
+        return Err(bad());
+    }
     Ok((
         grid,
+        volume,
         CheckpointHead {
             frames_done,
             settings,

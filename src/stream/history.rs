@@ -1,12 +1,13 @@
-//! The geometry integrated so far, seen from a frame's pose: each occupied voxel's mean
-//! position and normal splatted into the frame with a z-buffer, each pixel of a splat
-//! taking the point where its ray meets the voxel's plane (so a wall renders flat, not as
-//! steps). The paper ray-casts its fused volume for the same purpose: a depth map less noisy
-//! than the raw frame, with holes filled by what earlier frames saw.
+//! The geometry integrated so far, seen from a frame's pose. For the SSAO with history, the
+//! fused distance volume ray-cast at the frame's pose, as the paper does: a depth map less
+//! noisy than the raw frame, with holes filled by what earlier frames saw. For the preview,
+//! the AO grid's occupied voxels splatted with a z-buffer, each pixel of a splat taking the
+//! point where its ray meets the voxel's plane (so a wall renders flat, not as steps).
 
 use super::frame::FrameGeometry;
 use super::frames::Intrinsics;
 use super::grid::VoxelGrid;
+use super::tsdf::Tsdf;
 use glam::{DMat4, Vec3};
 use rayon::prelude::*;
 
@@ -78,81 +79,45 @@ pub fn render(
     (geo, ao)
 }
 
-/// The frame's geometry for its SSAO with history: each pixel the frame measured moves
-/// along its ray onto the plane (mean position, mean normal) of the integrated points
-/// around it and takes that normal, so the noise of one frame is replaced by the average of the
-/// frames before it; pixels the frame did not measure take the rendered history. A pixel
-/// whose voxel is empty, or whose plane lies farther than a voxel along the ray, keeps its
-/// own point and normal.
-pub fn blend(
-    history: &FrameGeometry,
+/// The frame's geometry for its SSAO with history: the fused volume ray-cast at the frame's
+/// pose, `width × height` pixels of intrinsics `k`. A pixel the frame measured (`own`) looks
+/// for the surface within `2μ` of its own depth and keeps its own point where the volume has
+/// none there; a pixel it did not measure searches the whole range. Normals come from the
+/// cast depth map as from a frame's own (over a pixel's neighbours, not the volume's
+/// gradient over a voxel's, which is noisier where voxels are smaller than pixels).
+pub fn cast(
+    volume: &Tsdf,
     own: &FrameGeometry,
-    grid: &VoxelGrid,
     pose: DMat4,
+    k: &Intrinsics,
+    range: (f32, f32),
 ) -> FrameGeometry {
-    let to_cam = pose.inverse();
-    let rot = glam::DMat3::from_mat4(to_cam);
-    let voxel = grid.voxel as f32;
-    let n = own.points.len().min(history.points.len());
-    let px: Vec<(Vec3, Vec3)> = (0..n)
+    let (w, h) = (own.width, own.height);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let mu = volume.mu;
+    let points: Vec<Vec3> = (0..w * h)
         .into_par_iter()
         .map(|i| {
-            if !own.is_valid(i) {
-                return (history.points[i], history.normals[i]);
-            }
-            let q = own.points[i];
-            let keep = (q, own.normals[i]);
-            let pw = pose.transform_point3(q.as_dvec3());
-            let Some((mw, nw)) = neighbourhood_plane(grid, pw) else {
-                return keep;
+            let (x, y) = ((i % w) as f32, (i / w) as f32);
+            let dir = Vec3::new((x - cx) / fx, (y - cy) / fy, 1.0);
+            let measured = own.points[i].z > 0.0;
+            let (t0, t1) = if measured {
+                let (d, l) = (own.points[i].z as f64, dir.length() as f64);
+                ((d - 2.0 * mu / l).max(range.0 as f64), d + 2.0 * mu / l)
+            } else {
+                (range.0 as f64, range.1 as f64)
             };
-            let m = to_cam.transform_point3(mw).as_vec3();
-            let nrm = (rot * nw.as_dvec3()).as_vec3();
-            let ray = q / q.z;
-            let den = nrm.dot(ray);
-            if !(den < -1e-3) {
-                return keep;
+            match volume.cast(&pose, dir, t0, t1) {
+                Some(t) => dir * t as f32,
+                None => own.points[i],
             }
-            let z = nrm.dot(m) / den;
-            if !((z - q.z).abs() <= voxel) {
-                return keep;
-            }
-            (ray * z, nrm)
         })
         .collect();
-    let points: Vec<Vec3> = px.iter().map(|p| p.0).collect();
-    let normals = px.iter().map(|p| p.1).collect();
+    let normals = super::frame::depth_normals(&points, w, h);
     FrameGeometry {
-        width: own.width,
-        height: own.height,
+        width: w,
+        height: h,
         points,
         normals,
     }
-}
-
-/// The weighted mean position and unit mean normal of the points in the 2 × 2 × 2 voxels
-/// whose centres surround `p`: two voxels across hold a surface's noise on both sides of `p`,
-/// so the mean lies on the surface rather than on the side of it one voxel happens to cut.
-pub fn neighbourhood_plane(grid: &VoxelGrid, p: glam::DVec3) -> Option<(glam::DVec3, Vec3)> {
-    let c = grid.cell_of(p - glam::DVec3::splat(0.5 * grid.voxel));
-    let (mut sp, mut sn, mut sw) = (glam::DVec3::ZERO, Vec3::ZERO, 0.0f64);
-    for dz in 0..=1 {
-        for dy in 0..=1 {
-            for dx in 0..=1 {
-                let Some(k) = super::grid::morton([c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                    continue;
-                };
-                let Some(cell) = grid.get(k) else {
-                    continue;
-                };
-                let off =
-                    glam::DVec3::new(cell.pos[0] as f64, cell.pos[1] as f64, cell.pos[2] as f64);
-                sp += grid.corner(k) * cell.w + off;
-                sn += Vec3::from(cell.nrm);
-                sw += cell.w;
-            }
-        }
-    }
-    let n = sn.normalize_or_zero();
-    (sw > 0.0 && n != Vec3::ZERO).then(|| (sp / sw, n))
 }

@@ -123,9 +123,12 @@ pub fn run(cfg: &StreamConfig, obs: &dyn Observer) -> Result<StreamReport> {
     let mut integ = Integrator::new(cfg.params, cfg.intrinsics);
     let mut first = 0usize;
     if ck_path.is_file() {
-        let (g, head) = grid::read_checkpoint(&ck_path)?;
-        if head.settings == settings && (head.frames_done as usize) <= files.len() {
+        let (g, volume, head) = grid::read_checkpoint(&ck_path)?;
+        // A checkpoint of an earlier layout has no history volume to continue from.
+        let complete = volume.is_some() || !cfg.params.history || head.frames_done == 0;
+        if head.settings == settings && (head.frames_done as usize) <= files.len() && complete {
             integ.grid = g;
+            integ.volume = volume;
             first = head.frames_done as usize;
             obs.info(&format!("resuming from frame {first} of {}", files.len()));
         }
@@ -174,7 +177,7 @@ pub fn run(cfg: &StreamConfig, obs: &dyn Observer) -> Result<StreamReport> {
                 frames_done: done as u64,
                 settings,
             };
-            grid::write_checkpoint(&ck_path, &integ.grid, head)?;
+            grid::write_checkpoint(&ck_path, &integ.grid, integ.volume.as_ref(), head)?;
         }
     }
     obs.done("frames", start.elapsed().as_secs_f64());
@@ -206,7 +209,7 @@ pub fn run(cfg: &StreamConfig, obs: &dyn Observer) -> Result<StreamReport> {
         pixels_integrated: pixels,
         out_of_range: integ.grid.out_of_range,
         weights: weights(&integ),
-        bytes_per_voxel: integ.grid.table_bytes() as f64 / integ.grid.len().max(1) as f64,
+        bytes_per_voxel: integ.bytes() as f64 / integ.grid.len().max(1) as f64,
         params: cfg.params,
         times: integ.times.clone(),
         write_s,

@@ -13,7 +13,9 @@ pub mod frames;
 pub mod grid;
 pub mod history;
 mod job;
+pub mod score;
 pub mod synth;
+pub mod tsdf;
 
 pub use job::{run, settings_hash, DroppedFrame, StreamConfig, StreamReport, WeightSummary};
 
@@ -105,6 +107,9 @@ pub struct Integrator {
     /// Per voxel Σ A and the count of the ground truths added with
     /// [`Integrator::add_frame_truth`] (empty otherwise).
     pub truth: std::collections::HashMap<u64, (f64, u64)>,
+    /// The fused geometry history reads (`None` without history, or before the first
+    /// frame with a depth).
+    pub volume: Option<tsdf::Tsdf>,
 }
 
 /// One pixel to add: its index, its voxel's key (`u64::MAX` beyond the keyed range) and
@@ -120,7 +125,13 @@ impl Integrator {
             intrinsics,
             times: StageTimes::default(),
             truth: Default::default(),
+            volume: None,
         }
+    }
+
+    /// Bytes held by the grid's table and the history volume.
+    pub fn bytes(&self) -> usize {
+        self.grid.table_bytes() + self.volume.as_ref().map_or(0, tsdf::Tsdf::bytes)
     }
 
     /// Cleans `frame`, computes its SSAO and adds its pixels to the grid at camera-to-world
@@ -172,8 +183,19 @@ impl Integrator {
         };
         self.times.clean_normals += lap(&mut t);
         let low = if p.history {
-            let (hist, _) = history::render(&self.grid, pose, &k_low, lw, lh, p.clean.min_range);
-            history::blend(&hist, &own_low, &self.grid, pose)
+            let view = tsdf::DepthView {
+                depth: &cleaned,
+                width: w,
+                height: h,
+                k,
+                pose,
+            };
+            let vol = self
+                .volume
+                .get_or_insert_with(|| tsdf::Tsdf::new(history_voxel(&cleaned, &k_low, p.voxel)));
+            vol.integrate(&view);
+            let range = (p.clean.min_range, p.clean.max_range);
+            history::cast(vol, &own_low, pose, &k_low, range)
         } else {
             own_low
         };
@@ -268,6 +290,25 @@ impl Integrator {
             });
         n
     }
+}
+
+/// The history volume's voxel: the SSAO map's pixel footprint at the median depth of the
+/// first frame, or the grid's voxel when that is larger. Finer voxels add no detail to a
+/// depth map cast at the SSAO's resolution, only the noise fewer frames average per voxel
+/// (on a noisy synthetic room stream at ¼ resolution: e_A 0.0105 at the grid's 6 mm, 0.0082
+/// at the footprint, 36 mm).
+fn history_voxel(depth: &[f32], k_low: &Intrinsics, grid_voxel: f64) -> f64 {
+    let mut d: Vec<f32> = depth.iter().copied().filter(|&z| z > 0.0).collect();
+    if d.is_empty() {
+        return grid_voxel;
+    }
+    let mid = d.len() / 2;
+    let (_, m, _) = d.select_nth_unstable_by(mid, f32::total_cmp);
+    let f = k_low.fx.max(k_low.fy);
+    if !(f > 0.0) {
+        return grid_voxel;
+    }
+    (*m as f64 / f).max(grid_voxel)
 }
 
 #[cfg(test)]
