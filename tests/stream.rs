@@ -51,8 +51,8 @@ fn issue_33_voxels_beat_single_frames_and_history_is_order_stable() {
     let h = mvao::stream::score::score(&s, params(0.05, 0.1, true, 1), &order);
     let (hr, _, _) = score(&s, params(0.05, 0.1, true, 1), &rev);
     eprintln!(
-        "history on: voxel e_A {:.4} (reversed {hr:.4}, per pixel {:.4}), single-frame e_A {:.4}",
-        h.voxel, h.voxel_per_pixel, h.single
+        "history on: voxel e_A {:.4} (reversed {hr:.4}, per pixel {:.4}), single-frame e_A {:.4}, {:.1} bytes per voxel",
+        h.voxel, h.voxel_per_pixel, h.single, h.bytes_per_voxel
     );
     // Per voxel, far and thinly seen surfaces count as much as near ones.
     assert!(
@@ -62,6 +62,12 @@ fn issue_33_voxels_beat_single_frames_and_history_is_order_stable() {
         h.single
     );
     assert!((h.voxel - hr).abs() <= 0.01, "{} vs reversed {hr}", h.voxel);
+    // The history volume is counted in the memory bound.
+    assert!(
+        h.bytes_per_voxel <= 128.0,
+        "{} bytes per voxel",
+        h.bytes_per_voxel
+    );
 }
 
 /// See issue 33: SSAO at a half and a quarter of the resolution (the default) stays within

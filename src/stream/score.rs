@@ -18,6 +18,8 @@ pub struct StreamScore {
     pub single: f64,
     /// Voxels scored.
     pub voxels: usize,
+    /// Bytes of the grid's table and the history volume per occupied voxel.
+    pub bytes_per_voxel: f64,
 }
 
 /// Integrates the frames of `s` in `order` with `p` and scores the grid.
@@ -64,5 +66,6 @@ pub fn score(s: &SynthStream, p: StreamParams, order: &[usize]) -> StreamScore {
         voxel_per_pixel: wsad / wn.max(1) as f64,
         single: frame_e.iter().sum::<f64>() / frame_e.len().max(1) as f64,
         voxels: n,
+        bytes_per_voxel: it.bytes() as f64 / it.grid.len().max(1) as f64,
     }
 }

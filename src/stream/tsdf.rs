@@ -6,7 +6,7 @@
 //! before have averaged out along the rays (where the occupied voxels of the AO grid only
 //! keep a noisy shell a few voxels thick).
 //!
-//! Voxels live in 8 × 8 × 8 blocks keyed by the Morton code of the block, allocated where a
+//! Voxels live in 4 × 4 × 4 blocks keyed by the Morton code of the block, allocated where a
 //! frame's rays pass within `μ` of their depth; an arena keeps blocks in the order they
 //! were first seen (sorted by key within a frame), so the volume does not depend on thread
 //! timing.
@@ -19,30 +19,30 @@ use std::collections::HashMap;
 use std::hash::BuildHasherDefault;
 
 /// Voxels along a block's edge.
-const EDGE: usize = 8;
+const EDGE: usize = 4;
 /// Voxels in a block.
 const CELLS: usize = EDGE * EDGE * EDGE;
 /// The truncation distance in voxels: two or three voxels on each side of a surface hold
 /// a value for the zero crossing (2, 3 and 4 measured alike on noisy synthetic streams).
-pub const TRUNCATION_VOXELS: f64 = 3.0;
+pub const TRUNCATION_VOXELS: f64 = 2.0;
 /// The distance's fixed-point unit: `μ` is `D_ONE`.
 const D_ONE: f32 = 32767.0;
 
 /// One block: per voxel the running mean of the truncated distance (fixed point, `±μ` =
-/// `±D_ONE`) and its weight (frames that saw it; 0 = unknown). Four bytes a voxel.
+/// `±D_ONE`) and its weight (frames that saw it, up to 255; 0 = unknown). Three bytes a voxel.
 #[derive(Debug, Clone)]
 pub struct Block {
     /// Truncated signed distance, per voxel, x fastest.
-    pub d: Box<[i16; CELLS]>,
+    pub d: [i16; CELLS],
     /// Observations per voxel.
-    pub w: Box<[u16; CELLS]>,
+    pub w: [u8; CELLS],
 }
 
 impl Default for Block {
     fn default() -> Self {
         Block {
-            d: Box::new([0; CELLS]),
-            w: Box::new([0; CELLS]),
+            d: [0; CELLS],
+            w: [0; CELLS],
         }
     }
 }
@@ -58,7 +58,7 @@ pub struct Tsdf {
     /// Block keys in arena order.
     pub keys: Vec<u64>,
     /// The blocks, in arena order.
-    pub blocks: Vec<Block>,
+    pub blocks: Vec<Box<Block>>,
 }
 
 /// What one frame's depth integration needs besides the depth.
@@ -102,9 +102,12 @@ impl Tsdf {
             .sum()
     }
 
-    /// Bytes held by blocks and index.
+    /// Bytes held by blocks, arena and index.
     pub fn bytes(&self) -> usize {
-        self.blocks.len() * (CELLS * 4 + std::mem::size_of::<Block>() + 8)
+        // Per block its allocation with the allocator's header; the arena's pointers and
+        // keys; the index's entries and control bytes.
+        self.blocks.len() * (std::mem::size_of::<Block>() + 16)
+            + (self.blocks.capacity() + self.keys.capacity()) * 8
             + self.index.capacity() * 13
     }
 
@@ -128,14 +131,18 @@ impl Tsdf {
         let mu = self.mu;
         let rot = DMat3::from_mat4(v.pose);
         let origin = v.pose.w_axis.truncate();
-        // Every second pixel: a block is several pixels wide at any range this is used at.
-        let mut keys: Vec<u64> = (0..v.height.div_ceil(2))
+        // Pixels at most half a block apart at the frame's farthest depth, so no block the
+        // surface crosses is missed; a block is usually many pixels wide.
+        let far = v.depth.par_iter().copied().reduce(|| 0.0, f32::max) as f64;
+        let across = block * fx.min(fy) / far.max(1e-6);
+        let stride = ((0.5 * across) as usize).clamp(1, 4);
+        let mut keys: Vec<u64> = (0..v.height.div_ceil(stride))
             .into_par_iter()
             .flat_map_iter(|row| {
-                let y = row * 2;
+                let y = row * stride;
                 let mut out = Vec::new();
                 let mut last = u64::MAX;
-                for x in (0..v.width).step_by(2) {
+                for x in (0..v.width).step_by(stride) {
                     let d = v.depth[y * v.width + x] as f64;
                     if !(d > 0.0) {
                         continue;
@@ -176,7 +183,7 @@ impl Tsdf {
             } else {
                 self.index.insert(k, self.blocks.len() as u32);
                 self.keys.push(k);
-                self.blocks.push(Block::default());
+                self.blocks.push(Box::default());
                 mark.push(true);
             }
         }
@@ -215,12 +222,18 @@ impl Tsdf {
                         continue;
                     }
                     let sdf = (d - q.z) * (q.length() / q.z);
-                    if sdf < -mu {
+                    // Half a `μ` of slack behind the surface: the distance is measured to the
+                    // depth of the pixel the voxel's centre falls in, up to half a pixel
+                    // away, which on a tilted surface seen through coarse pixels reads a
+                    // voxel just inside the band as beyond it and leaves a hole at the
+                    // crossing.
+                    if sdf < -1.5 * mu {
                         continue;
                     }
-                    let f = (sdf / mu).min(1.0) * D_ONE;
-                    // Past 65 535 frames the mean turns into a running average.
-                    let w = b.w[c].min(u16::MAX - 1) as f32;
+                    let f = (sdf / mu).clamp(-1.0, 1.0) * D_ONE;
+                    // Past 255 frames the mean turns into a running average over about as
+                    // many; the steps stay far above the fixed point's unit.
+                    let w = b.w[c].min(u8::MAX - 1) as f32;
                     let d = (b.d[c] as f32 * w + f) / (w + 1.0);
                     b.d[c] = d.round().clamp(-D_ONE, D_ONE) as i16;
                     b.w[c] = b.w[c].saturating_add(1);
@@ -247,7 +260,8 @@ impl Tsdf {
     }
 
     /// The trilinear distance (over `μ`) at world point `p`, `None` unless all eight voxel
-    /// centres around it are observed.
+    /// centres around it are observed (a partial set would let the band's sparse fringes,
+    /// at depth edges, pass for surfaces).
     fn sample(&self, p: DVec3, cache: &mut (u64, u32)) -> Option<f32> {
         let g = p / self.voxel - DVec3::splat(0.5);
         let b = g.floor();
@@ -282,21 +296,38 @@ impl Tsdf {
         let (min_step, unknown_step) = (0.5 * self.voxel / len, 0.5 * self.mu / len);
         let mut t = t0;
         let mut prev: Option<(f64, f32)> = None;
+        // The last unknown sample, and whether the march already went back to it: a step
+        // through unknown space can land past the thin front of a surface (a sample needs
+        // all eight voxels around it observed), so a first sample behind a surface is
+        // checked again at the fine step before it counts as a back face.
+        let (mut unknown_at, mut fine) = (None::<f64>, false);
         while t <= t1 {
             let f = self.sample(o + dw * t, &mut cache);
             match (prev, f) {
                 (Some((tp, fp)), Some(fc)) if fp > 0.0 && fc <= 0.0 => {
                     return Some(tp + (t - tp) * (fp / (fp - fc)) as f64);
                 }
-                // Entering behind a surface without having seen its front: a back face.
-                (None, Some(fc)) if fc < 0.0 && t > t0 => return None,
+                (None, Some(fc)) if fc < 0.0 && t > t0 => match unknown_at {
+                    Some(tu) if !fine => {
+                        fine = true;
+                        t = tu + min_step;
+                        continue;
+                    }
+                    _ => return None,
+                },
                 _ => {}
             }
             let step = match f {
                 Some(fc) if fc > 0.0 => (0.8 * fc as f64 * self.mu / len).max(min_step),
                 Some(_) => min_step,
+                None if fine => min_step,
                 None => unknown_step,
             };
+            if f.is_none() {
+                unknown_at = Some(t);
+            } else {
+                fine = false;
+            }
             prev = f.map(|fc| (t, fc));
             t += step;
         }
@@ -315,9 +346,9 @@ impl Tsdf {
         }
         for (k, b) in self.keys.iter().zip(&self.blocks) {
             w.write_all(&k.to_le_bytes())?;
-            let mut buf = Vec::with_capacity(CELLS * 4);
+            let mut buf = Vec::with_capacity(CELLS * 3);
             buf.extend(b.d.iter().flat_map(|v| v.to_le_bytes()));
-            buf.extend(b.w.iter().flat_map(|v| v.to_le_bytes()));
+            buf.extend_from_slice(&b.w);
             w.write_all(&buf)?;
         }
         Ok(())
@@ -336,7 +367,7 @@ impl Tsdf {
         if !(voxel > 0.0 && mu > 0.0 && voxel.is_finite() && mu.is_finite()) {
             return None;
         }
-        let block_bytes = 8 + CELLS * 4;
+        let block_bytes = 8 + CELLS * 3;
         if r.len() < n.checked_mul(block_bytes)? {
             return None;
         }
@@ -345,15 +376,13 @@ impl Tsdf {
             keys.push(u64_at(r)?);
             let mut b = Block::default();
             let (d, t) = r.split_at(CELLS * 2);
-            let (wt, t) = t.split_at(CELLS * 2);
+            let (wt, t) = t.split_at(CELLS);
             for (i, c) in d.chunks_exact(2).enumerate() {
                 b.d[i] = i16::from_le_bytes([c[0], c[1]]);
             }
-            for (i, c) in wt.chunks_exact(2).enumerate() {
-                b.w[i] = u16::from_le_bytes([c[0], c[1]]);
-            }
+            b.w.copy_from_slice(wt);
             *r = t;
-            blocks.push(b);
+            blocks.push(Box::new(b));
         }
         let index: HashMap<u64, u32, BuildHasherDefault<KeyHasher>> = keys
             .iter()
