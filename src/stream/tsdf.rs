@@ -22,8 +22,9 @@ use std::hash::BuildHasherDefault;
 const EDGE: usize = 4;
 /// Voxels in a block.
 const CELLS: usize = EDGE * EDGE * EDGE;
-/// The truncation distance in voxels: two or three voxels on each side of a surface hold
-/// a value for the zero crossing (2, 3 and 4 measured alike on noisy synthetic streams).
+/// The truncation distance in voxels: two voxels on each side of a surface hold a value
+/// for the zero crossing (2, 3 and 4 measured alike on noisy synthetic streams; fewer
+/// voxels per surface keep the volume small).
 pub const TRUNCATION_VOXELS: f64 = 2.0;
 /// The distance's fixed-point unit: `μ` is `D_ONE`.
 const D_ONE: f32 = 32767.0;
@@ -173,7 +174,7 @@ impl Tsdf {
     }
 
     /// Adds a frame's depth: each voxel of the blocks near its surface that projects onto a
-    /// measured pixel and lies no more than `μ` behind it takes the truncated distance.
+    /// measured pixel and lies no more than `1.5 μ` behind it takes the truncated distance.
     pub fn integrate(&mut self, v: &DepthView) {
         let touched = self.touched_blocks(v);
         let mut mark = vec![false; self.blocks.len()];
