@@ -182,22 +182,22 @@ impl Integrator {
             frame::geometry(&low_depth, lw, lh, &k_low)
         };
         self.times.clean_normals += lap(&mut t);
-        let low = if p.history {
-            let view = tsdf::DepthView {
-                depth: &cleaned,
-                width: w,
-                height: h,
-                k,
-                pose,
-            };
-            let vol = self
-                .volume
-                .get_or_insert_with(|| tsdf::Tsdf::new(history_voxel(&cleaned, &k_low, p.voxel)));
-            vol.integrate(&view);
-            let range = (p.clean.min_range, p.clean.max_range);
-            history::cast(vol, &own_low, pose, &k_low, range)
-        } else {
-            own_low
+        if p.history && self.volume.is_none() {
+            self.volume = history_voxel(&cleaned, &k_low, p.voxel).map(tsdf::Tsdf::new);
+        }
+        let low = match self.volume.as_mut().filter(|_| p.history) {
+            Some(vol) => {
+                vol.integrate(&tsdf::DepthView {
+                    depth: &cleaned,
+                    width: w,
+                    height: h,
+                    k,
+                    pose,
+                });
+                let range = (p.clean.min_range, p.clean.max_range);
+                history::cast(vol, &own_low, pose, &k_low, range)
+            }
+            None => own_low,
         };
         self.times.history += lap(&mut t);
         let ao = frame::frame_ssao(&low, &k_low, &p.ssao, &geo, &k, f);
@@ -293,22 +293,23 @@ impl Integrator {
 }
 
 /// The history volume's voxel: the SSAO map's pixel footprint at the median depth of the
-/// first frame, or the grid's voxel when that is larger. Finer voxels add no detail to a
-/// depth map cast at the SSAO's resolution, only the noise fewer frames average per voxel
-/// (on a noisy synthetic room stream at ¼ resolution: e_A 0.0105 at the grid's 6 mm, 0.0082
-/// at the footprint, 36 mm).
-fn history_voxel(depth: &[f32], k_low: &Intrinsics, grid_voxel: f64) -> f64 {
+/// first frame with a depth (`None` before one), or the grid's voxel when that is larger.
+/// Finer voxels add no detail to a depth map cast at the SSAO's resolution, only the noise
+/// of fewer frames per voxel (a noisy synthetic room stream at ¼ resolution: e_A
+/// 0.0098–0.0105 at the grid's 6 mm, 0.0082–0.0093 at the footprint, 32–36 mm).
+fn history_voxel(depth: &[f32], k_low: &Intrinsics, grid_voxel: f64) -> Option<f64> {
     let mut d: Vec<f32> = depth.iter().copied().filter(|&z| z > 0.0).collect();
     if d.is_empty() {
-        return grid_voxel;
+        return None;
     }
     let mid = d.len() / 2;
     let (_, m, _) = d.select_nth_unstable_by(mid, f32::total_cmp);
     let f = k_low.fx.max(k_low.fy);
-    if !(f > 0.0) {
-        return grid_voxel;
-    }
-    (*m as f64 / f).max(grid_voxel)
+    Some(if f > 0.0 {
+        (*m as f64 / f).max(grid_voxel)
+    } else {
+        grid_voxel
+    })
 }
 
 #[cfg(test)]

@@ -507,3 +507,36 @@ fn kept_pixels_of_a_sparse_block_read_a_neighbour_on_their_surface_only() {
     assert!(!front.is_empty());
     assert!(front.iter().all(|&i| ao[i].is_none()), "{ao:?}");
 }
+
+#[test]
+fn history_volume_starts_at_the_first_frame_with_a_depth() {
+    use super::synth::{look_pose, synth_stream, StreamSynthOptions};
+    let pose = look_pose(DVec3::new(0.0, 0.0, 1.5), DVec3::new(-1.0, 0.6, -0.4));
+    let o = StreamSynthOptions {
+        width: 64,
+        height: 48,
+        truth_rays: 0,
+        ..StreamSynthOptions::default()
+    };
+    let s = synth_stream(&crate::synth::Scene::room(), &[pose], &o);
+    let mut it = Integrator::new(
+        StreamParams {
+            history: true,
+            ..small_params()
+        },
+        s.intrinsics,
+    );
+    let empty = DepthFrame {
+        depth: vec![0.0; 64 * 48],
+        ..s.frames[0].clone()
+    };
+    assert_eq!(it.add_frame(&empty, pose).integrated, 0);
+    assert!(it.volume.is_none());
+    let st = it.add_frame(&s.frames[0], pose);
+    assert!(st.integrated > 1000, "{st:?}");
+    let vol = it.volume.as_ref().expect("a volume after a frame with depth");
+    // A pixel's footprint at the median depth (about 3 m at 55 px per radian), never under
+    // the grid's 5 cm.
+    assert!((0.05..0.07).contains(&vol.voxel), "{}", vol.voxel);
+    assert!(vol.observed() > 1000);
+}
