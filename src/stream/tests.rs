@@ -534,7 +534,10 @@ fn history_volume_starts_at_the_first_frame_with_a_depth() {
     assert!(it.volume.is_none());
     let st = it.add_frame(&s.frames[0], pose);
     assert!(st.integrated > 1000, "{st:?}");
-    let vol = it.volume.as_ref().expect("a volume after a frame with depth");
+    let vol = it
+        .volume
+        .as_ref()
+        .expect("a volume after a frame with depth");
     // A pixel's footprint at the median depth (about 3 m at 55 px per radian), never under
     // the grid's 5 cm.
     assert!((0.05..0.07).contains(&vol.voxel), "{}", vol.voxel);
