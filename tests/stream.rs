@@ -175,6 +175,12 @@ fn issue_33_grid_bounds_and_las_output() {
     assert!((rep_g["params"]["voxel"].as_f64().unwrap() - 0.05).abs() < 1e-12);
     let (v, rep_v) = run("voxel", &["--voxel", "0.05"]);
     assert_eq!(rep_g["voxels"], rep_v["voxels"]);
+    // The history's volume is reported (the memory bound is checked on a larger stream).
+    assert!(rep_v["history_volume"].is_null());
+    let (_, rep_h) = run("history", &["--voxel", "0.05", "--history"]);
+    let hv = &rep_h["history_volume"];
+    assert!(hv["voxel"].as_f64().unwrap() >= 0.05, "{hv}");
+    assert!(hv["observed_voxels"].as_u64().unwrap() > 0, "{hv}");
     let a = std::fs::read(g.join("stream.ply")).unwrap();
     assert!(a == std::fs::read(v.join("stream.ply")).unwrap());
     // The same grid written as LAS.

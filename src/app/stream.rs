@@ -69,8 +69,10 @@ pub struct StreamArgs {
     /// Compute each frame's SSAO at 1/N of its resolution (means of N × N pixel blocks).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=8))]
     pub ssao_scale: u32,
-    /// SSAO on the geometry integrated so far at each frame's pose instead of on the frame's
-    /// own cleaned depth (without it, the result does not depend on the frame order).
+    /// SSAO on a depth map ray-cast at each frame's pose from a signed-distance volume of the
+    /// frames so far instead of on the frame's own cleaned depth: less noise at full or half
+    /// resolution, no gain at the default quarter (without it, the result does not depend on
+    /// the frame order).
     #[arg(long)]
     pub history: bool,
     /// Skip the 5×5 blur of each frame's SSAO.

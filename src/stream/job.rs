@@ -71,8 +71,10 @@ pub struct StreamReport {
     pub out_of_range: u64,
     /// Total weight, and the smallest, median and largest voxel weight.
     pub weights: WeightSummary,
-    /// Bytes of the voxel table per occupied voxel.
+    /// Bytes of the voxel table (and the history volume) per occupied voxel.
     pub bytes_per_voxel: f64,
+    /// The history volume, when the run has one.
+    pub history_volume: Option<VolumeSummary>,
     /// Settings.
     pub params: StreamParams,
     /// Seconds per stage (this run).
@@ -85,6 +87,21 @@ pub struct StreamReport {
     pub frames_per_s: f64,
     /// The output file.
     pub output: PathBuf,
+}
+
+/// The history's distance volume in `report.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct VolumeSummary {
+    /// Voxel edge (metres).
+    pub voxel: f64,
+    /// Truncation distance (metres).
+    pub truncation: f64,
+    /// Allocated blocks of 4 × 4 × 4 voxels.
+    pub blocks: usize,
+    /// Voxels observed at least once.
+    pub observed_voxels: usize,
+    /// Bytes held.
+    pub bytes: usize,
 }
 
 /// Voxel weights.
@@ -210,6 +227,13 @@ pub fn run(cfg: &StreamConfig, obs: &dyn Observer) -> Result<StreamReport> {
         out_of_range: integ.grid.out_of_range,
         weights: weights(&integ),
         bytes_per_voxel: integ.bytes() as f64 / integ.grid.len().max(1) as f64,
+        history_volume: integ.volume.as_ref().map(|v| VolumeSummary {
+            voxel: v.voxel,
+            truncation: v.mu,
+            blocks: v.blocks.len(),
+            observed_voxels: v.observed(),
+            bytes: v.bytes(),
+        }),
         params: cfg.params,
         times: integ.times.clone(),
         write_s,

@@ -17,7 +17,9 @@ pub mod score;
 pub mod synth;
 pub mod tsdf;
 
-pub use job::{run, settings_hash, DroppedFrame, StreamConfig, StreamReport, WeightSummary};
+pub use job::{
+    run, settings_hash, DroppedFrame, StreamConfig, StreamReport, VolumeSummary, WeightSummary,
+};
 
 use crate::ssao::SsaoParams;
 use clean::CleanParams;
