@@ -202,6 +202,23 @@ fn loose_real_scans_keep_exact_neighbours() {
     }
 }
 
+/// `scan` turned by `turn` in its own frame and stripped of grid, normals and declared sensor,
+/// with the automatic map and that map's one-pixel holes and shared pixels.
+fn loose_map(
+    mut scan: mvao::Scan,
+    turn: glam::Quat,
+) -> (mvao::Scan, sensor::SensorSetup, f64, f64) {
+    for p in &mut scan.points {
+        *p = turn * *p;
+    }
+    scan.grid = None;
+    scan.normals = None;
+    scan.sensor_hint = None;
+    let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+    let (holes, shared) = holes_and_sharing(&scan.points, &setup.projection);
+    (scan, setup, holes, shared)
+}
+
 /// A linear scanner stored without grid: its frame's origin is not where its rays meet, so
 /// the map is orthographic, and it steps its sweep 3× its line, at 30° to the frame's axes:
 /// the map follows both steps and the direction (about one pixel per point, no holes).
@@ -217,17 +234,10 @@ fn loose_linear_scans_get_an_orthographic_map_with_their_own_steps() {
         300,
         67,
     );
-    let mut scan = scan_scene(&SceneKind::Room.scene(), &st, 0.0, 0, "s");
+    let scan = scan_scene(&SceneKind::Room.scene(), &st, 0.0, 0, "s");
     let turn = Quat::from_rotation_z(30f32.to_radians());
-    for p in &mut scan.points {
-        *p = turn * *p;
-    }
-    scan.grid = None;
-    scan.normals = None;
-    scan.sensor_hint = None;
-    let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+    let (scan, setup, holes, shared) = loose_map(scan, turn);
     let proj = &setup.projection;
-    let (holes, shared) = holes_and_sharing(&scan.points, proj);
     let fill = scan.len() as f64 / (proj.width * proj.height) as f64;
     eprintln!(
         "{}x{} px, {fill:.3} points per pixel, holes {holes:.4}, shared {shared:.4}: {}",
@@ -279,17 +289,10 @@ fn loose_stations_find_their_pole() {
     use mvao::testing::projection::SensorModel;
     let kind = SceneKind::Suite { rooms: 2 };
     let st = station_layout(kind, SensorModel::Equirect, 4, 720, 360)[1];
-    let mut scan = scan_scene(&kind.scene(), &st, 0.002, 0, "s");
+    let scan = scan_scene(&kind.scene(), &st, 0.002, 0, "s");
     let z_to_y = Quat::from_rotation_x(-90f32.to_radians());
-    for p in &mut scan.points {
-        *p = z_to_y * *p;
-    }
-    scan.grid = None;
-    scan.normals = None;
-    scan.sensor_hint = None;
-    let setup = sensor::setup(&scan, ProjectionChoice::Auto).unwrap();
+    let (_, setup, holes, shared) = loose_map(scan, z_to_y);
     let proj = &setup.projection;
-    let (holes, shared) = holes_and_sharing(&scan.points, proj);
     eprintln!(
         "{}x{} px, holes {holes:.4}, shared {shared:.4}: {}",
         proj.width, proj.height, setup.reason

@@ -92,6 +92,22 @@ fn cleaning_drops_one_band_each_side_of_a_5cm_step_and_nothing_at_1cm() {
     assert_eq!(out.iter().filter(|&&d| d > 0.0).count(), w * h / 2);
 }
 
+/// One 64 × 48 frame of the room (the modelled camera noise) and its pose.
+fn one_room_frame() -> (super::synth::SynthStream, DMat4) {
+    use super::synth::{look_pose, synth_stream, StreamSynthOptions};
+    let pose = look_pose(DVec3::new(0.0, 0.0, 1.5), DVec3::new(-1.0, 0.6, -0.4));
+    let o = StreamSynthOptions {
+        width: 64,
+        height: 48,
+        truth_rays: 0,
+        ..StreamSynthOptions::default()
+    };
+    (
+        synth_stream(&crate::synth::Scene::room(), &[pose], &o),
+        pose,
+    )
+}
+
 fn small_params() -> StreamParams {
     let mut p = StreamParams {
         voxel: 0.05,
@@ -105,16 +121,7 @@ fn small_params() -> StreamParams {
 
 #[test]
 fn one_frame_gives_each_voxel_the_weighted_mean_of_its_pixels() {
-    use super::synth::{look_pose, synth_stream, StreamSynthOptions};
-    let scene = crate::synth::Scene::room();
-    let pose = look_pose(DVec3::new(0.0, 0.0, 1.5), DVec3::new(-1.0, 0.6, -0.4));
-    let o = StreamSynthOptions {
-        width: 64,
-        height: 48,
-        truth_rays: 0,
-        ..StreamSynthOptions::default()
-    };
-    let s = synth_stream(&scene, &[pose], &o);
+    let (s, pose) = one_room_frame();
     let mut it = Integrator::new(small_params(), s.intrinsics);
     let (geo, ao, _) = it.clone().frame_ssao(&s.frames[0], pose);
     let st = it.add_frame(&s.frames[0], pose);
@@ -510,15 +517,7 @@ fn kept_pixels_of_a_sparse_block_read_a_neighbour_on_their_surface_only() {
 
 #[test]
 fn history_volume_starts_at_the_first_frame_with_a_depth() {
-    use super::synth::{look_pose, synth_stream, StreamSynthOptions};
-    let pose = look_pose(DVec3::new(0.0, 0.0, 1.5), DVec3::new(-1.0, 0.6, -0.4));
-    let o = StreamSynthOptions {
-        width: 64,
-        height: 48,
-        truth_rays: 0,
-        ..StreamSynthOptions::default()
-    };
-    let s = synth_stream(&crate::synth::Scene::room(), &[pose], &o);
+    let (s, pose) = one_room_frame();
     let mut it = Integrator::new(
         StreamParams {
             history: true,
