@@ -1,12 +1,15 @@
 //! Per-point normals (PCA over the 16 nearest neighbours, oriented towards the sensor) and
 //! radii `rad(p) = 2·sqrt(d_k²/k)` with `d_k` the distance to the k-th nearest neighbour
 //! (k = 32): from a window of the native grid where the scan has one, else from exact k
-//! nearest neighbour queries (a cell grid, [`super::knn`], or a k-d tree).
+//! nearest neighbour queries (a cell grid, [`super::knn`], or a k-d tree). Where the 16 nearest
+//! are narrower than the scan's noise, the normal is fitted over more ([`widen`]).
 
 use glam::{DVec3, Vec3, Vec3A, Vec4};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
+
+mod widen;
 
 /// Neighbours used for a PCA normal.
 pub const K_NORMAL: usize = 16;
@@ -31,6 +34,15 @@ pub fn estimate<F>(points: &[Vec3], need_normals: bool, toward: F) -> (Option<Ve
 where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
+    let (fits, radii) = estimate_fits(points, need_normals, &toward);
+    (fits.map(|f| widen::widen(points, &f, &toward)), radii)
+}
+
+/// [`estimate`] before its normals are widened.
+fn estimate_fits<F>(points: &[Vec3], need_normals: bool, toward: F) -> (Option<Vec<Fit>>, Vec<f32>)
+where
+    F: Fn(Vec3) -> Vec3 + Sync,
+{
     let k = K_RADIUS.max(K_NORMAL).min(points.len());
     if points.len() >= VOXEL_MIN_POINTS {
         if let Some(g) = super::knn::VoxelGrid::new(points, k) {
@@ -51,7 +63,8 @@ where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
     let k = K_RADIUS.max(K_NORMAL).min(points.len());
-    estimate_with(points, None, k, need_normals, toward)
+    let (fits, radii) = estimate_with(points, None, k, need_normals, &toward);
+    (fits.map(|f| widen::widen(points, &f, &toward)), radii)
 }
 
 /// The k-d tree of `points` (item `i` is point `i`).
@@ -73,7 +86,7 @@ fn estimate_with<F>(
     k: usize,
     need_normals: bool,
     toward: F,
-) -> (Option<Vec<Vec3>>, Vec<f32>)
+) -> (Option<Vec<Fit>>, Vec<f32>)
 where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
@@ -82,7 +95,7 @@ where
     }
     let exact = Exact::new(points, grid, k);
     let (mut radii, mut normals) = outputs(points.len(), need_normals);
-    let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
+    let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Fit]))| {
         // `(d² bits << 32) | index`, nearest first (the tree's answers in its order).
         let mut nb: Vec<u64> = Vec::with_capacity(1024);
         for (o, r) in rad.iter_mut().enumerate() {
@@ -116,9 +129,9 @@ impl<'a> Exact<'a> {
         }
     }
 
-    /// The radius of point `i` and, when `need_normal`, its PCA normal (else zero), from its
+    /// The radius of point `i` and, when `need_normal`, its PCA fit (else zero), from its
     /// exact k nearest neighbours. `nb` is scratch.
-    fn point<F>(&self, i: usize, nb: &mut Vec<u64>, need_normal: bool, toward: &F) -> (f32, Vec3)
+    fn point<F>(&self, i: usize, nb: &mut Vec<u64>, need_normal: bool, toward: &F) -> (f32, Fit)
     where
         F: Fn(Vec3) -> Vec3,
     {
@@ -141,21 +154,26 @@ impl<'a> Exact<'a> {
             .map_or(0.0, |&x| f32::from_bits((x >> 32) as u32).max(0.0).sqrt());
         let normal = if need_normal {
             let m = nb.len().min(K_NORMAL);
-            pca_normal(
+            pca_fit(
                 nb[..m].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
                 toward(p),
             )
         } else {
-            Vec3::ZERO
+            Fit::default()
         };
         (radius_from_dk(dk, k), normal)
     }
 }
 
-/// Zeroed radii and (when wanted, else empty) normals for `n` points.
-fn outputs(n: usize, need_normals: bool) -> (Vec<f32>, Vec<Vec3>) {
+/// A PCA normal and the variances of its neighbourhood along the normal, along its narrower
+/// and along its wider tangent direction (the eigenvalues of the covariance, ascending, m²):
+/// what [`widen`] needs to tell a plane from noise and [`crease`] a bend.
+pub(crate) type Fit = (Vec3, [f32; 3]);
+
+/// Zeroed radii and (when wanted, else empty) normal fits for `n` points.
+fn outputs(n: usize, need_normals: bool) -> (Vec<f32>, Vec<Fit>) {
     let normals = if need_normals {
-        crate::par::filled(n, Vec3::ZERO)
+        crate::par::filled(n, Fit::default())
     } else {
         Vec::new()
     };
@@ -167,9 +185,9 @@ const CHUNK: usize = 4096;
 
 /// Runs `work(chunk index, (radii chunk, normals chunk))` over `CHUNK`-sized chunks in
 /// parallel; `normals` is empty when normals are not wanted (its chunks are then empty).
-fn run_chunks<W>(radii: &mut [f32], normals: &mut [Vec3], work: W)
+fn run_chunks<W>(radii: &mut [f32], normals: &mut [Fit], work: W)
 where
-    W: Fn((usize, (&mut [f32], &mut [Vec3]))) + Sync + Send,
+    W: Fn((usize, (&mut [f32], &mut [Fit]))) + Sync + Send,
 {
     if normals.is_empty() {
         radii
@@ -207,7 +225,8 @@ pub fn estimate_grid<F>(
 where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
-    estimate_window(points, grid, need_normals, toward, false)
+    let (fits, radii) = estimate_window(points, grid, need_normals, &toward, false);
+    (fits.map(|f| widen::widen(points, &f, &toward)), radii)
 }
 
 /// Like [`estimate_grid`], for a grid that is not the scanner's own but each point's cell in
@@ -238,15 +257,16 @@ where
         .enumerate()
         .filter_map(|(i, r)| r.is_nan().then_some(i))
         .collect();
+    let widened = |fits: Option<Vec<Fit>>| fits.map(|f| widen::widen(points, &f, &toward));
     if missing.is_empty() {
-        return Some((normals, radii));
+        return Some((widened(normals), radii));
     }
     let k = K_RADIUS.max(K_NORMAL).min(points.len());
     let cell_grid = (points.len() >= VOXEL_MIN_POINTS)
         .then(|| super::knn::VoxelGrid::new(points, k))
         .flatten();
     let exact = Exact::new(points, cell_grid.as_ref(), k);
-    let fixed: Vec<(f32, Vec3)> = missing
+    let fixed: Vec<(f32, Fit)> = missing
         .par_iter()
         .map_init(
             || Vec::with_capacity(1024),
@@ -259,7 +279,7 @@ where
             v[i] = n;
         }
     }
-    Some((normals, radii))
+    Some((widened(normals), radii))
 }
 
 /// Largest share of a scan's points that may share their cell with another for
@@ -291,7 +311,7 @@ fn estimate_window<F>(
     need_normals: bool,
     toward: F,
     image: bool,
-) -> (Option<Vec<Vec3>>, Vec<f32>)
+) -> (Option<Vec<Fit>>, Vec<f32>)
 where
     F: Fn(Vec3) -> Vec3 + Sync,
 {
@@ -299,7 +319,7 @@ where
     let (rows, cols) = (grid.rows as i64, grid.cols as i64);
     let cells = (rows * cols) as usize;
     if n == 0 || cells == 0 || grid.row.len() != n {
-        return estimate(points, need_normals, toward);
+        return estimate_fits(points, need_normals, toward);
     }
     let (at, xyz) = cell_arrays(points, grid);
     let (gx, rest) = xyz.split_at(cells);
@@ -310,7 +330,7 @@ where
     let order: Option<Vec<u32>> = image.then(|| cell_order(&at, n));
     let k = K_RADIUS.min(n);
     let (mut radii, mut normals) = outputs(n, need_normals);
-    let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Vec3]))| {
+    let work = |(ci, (rad, nrm)): (usize, (&mut [f32], &mut [Fit]))| {
         // Candidates as squared-distance bits (non-negative floats order like their bits, so
         // selection compares integers; empty cells are NaN, whose bits order after every
         // distance); with normals, packed over the point index `(bits << 32) | index` so
@@ -406,7 +426,7 @@ where
                 if kn > 0 && kn < nc {
                     select(&mut cand[..nc], kn - 1, &mut scratch);
                 }
-                nrm[o] = pca_normal(
+                nrm[o] = pca_fit(
                     cand[..kn]
                         .iter()
                         .map(|&x| points[(x & 0xffff_ffff) as usize]),
@@ -654,9 +674,15 @@ fn select<T: Copy + Ord>(v: &mut [T], k: usize, scratch: &mut Scratch<T>) {
 /// The PCA normal of a neighbourhood (eigenvector of the smallest covariance eigenvalue),
 /// oriented so that `n·toward ≥ 0`. Degenerate neighbourhoods (fewer than 3 points,
 /// duplicates, collinear points) return `toward`.
+pub fn pca_normal(nb: impl Iterator<Item = Vec3>, toward: Vec3) -> Vec3 {
+    pca_fit(nb, toward).0
+}
+
+/// [`pca_normal`] with the neighbourhood's variances along its three axes, the normal first
+/// (zeros when degenerate).
 #[inline(never)]
-pub fn pca_normal(mut nb: impl Iterator<Item = Vec3>, toward: Vec3) -> Vec3 {
-    let fallback = toward.normalize_or(Vec3::Z);
+pub(crate) fn pca_fit(mut nb: impl Iterator<Item = Vec3>, toward: Vec3) -> Fit {
+    let fallback = (toward.normalize_or(Vec3::Z), [0.0; 3]);
     let Some(first) = nb.next() else {
         return fallback;
     };
@@ -685,14 +711,16 @@ pub fn pca_normal(mut nb: impl Iterator<Item = Vec3>, toward: Vec3) -> Vec3 {
         yz - s.y * c.z,
         zz - s.z * c.z,
     ];
-    let Some(n) = smallest_eigenvector(cov) else {
+    let Some((n, l0, l1)) = smallest_eigen(cov) else {
         return fallback;
     };
-    let n = n.as_vec3().normalize_or(fallback);
+    let n = n.as_vec3().normalize_or(fallback.0);
+    let tr = cov[0] + cov[3] + cov[5];
+    let spread = [l0, l1, (tr - l0 - l1).max(l1)].map(|l| (l / cnt as f64) as f32);
     if n.dot(toward) < 0.0 {
-        -n
+        (-n, spread)
     } else {
-        n
+        (n, spread)
     }
 }
 
@@ -707,6 +735,11 @@ pub fn pca_normal(mut nb: impl Iterator<Item = Vec3>, toward: Vec3) -> Vec3 {
 /// `A − λ0 I`, which are orthogonal to it. A handful of iterations against the dozen
 /// square roots and divisions of each sweep of [`sym_eigen3`]'s Jacobi rotations.
 pub fn smallest_eigenvector(a: [f64; 6]) -> Option<DVec3> {
+    smallest_eigen(a).map(|(v, _, _)| v)
+}
+
+/// [`smallest_eigenvector`] with the smallest and middle eigenvalues.
+fn smallest_eigen(a: [f64; 6]) -> Option<(DVec3, f64, f64)> {
     let tr = a[0] + a[3] + a[5];
     if !(tr > 0.0 && tr.is_finite()) {
         return None;
@@ -756,7 +789,8 @@ pub fn smallest_eigenvector(a: [f64; 6]) -> Option<DVec3> {
     } else {
         (c12, n12)
     };
-    (len2 > 0.0 && len2.is_finite()).then(|| v / len2.sqrt())
+    let l1 = prod / l2;
+    (len2 > 0.0 && len2.is_finite()).then(|| (v / len2.sqrt(), l * tr, l1 * tr))
 }
 
 /// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations: eigenvalues
