@@ -9,6 +9,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
 
+mod crease;
 mod widen;
 
 /// Neighbours used for a PCA normal.
@@ -154,10 +155,11 @@ impl<'a> Exact<'a> {
             .map_or(0.0, |&x| f32::from_bits((x >> 32) as u32).max(0.0).sqrt());
         let normal = if need_normal {
             let m = nb.len().min(K_NORMAL);
-            pca_fit(
-                nb[..m].iter().map(|&x| points[(x & 0xffff_ffff) as usize]),
-                toward(p),
-            )
+            let mut q = [Vec3::ZERO; K_NORMAL];
+            for (q, &x) in q.iter_mut().zip(&nb[..m]) {
+                *q = points[(x & 0xffff_ffff) as usize];
+            }
+            crease::fit(p, &q[..m], toward(p))
         } else {
             Fit::default()
         };
@@ -426,12 +428,11 @@ where
                 if kn > 0 && kn < nc {
                     select(&mut cand[..nc], kn - 1, &mut scratch);
                 }
-                nrm[o] = pca_fit(
-                    cand[..kn]
-                        .iter()
-                        .map(|&x| points[(x & 0xffff_ffff) as usize]),
-                    toward(points[i]),
-                );
+                let mut nb = [Vec3::ZERO; K_NORMAL];
+                for (q, &x) in nb.iter_mut().zip(&cand[..kn]) {
+                    *q = points[(x & 0xffff_ffff) as usize];
+                }
+                nrm[o] = crease::fit(points[i], &nb[..kn], toward(points[i]));
             }
         }
     };
@@ -953,9 +954,10 @@ mod tests {
         };
         let toward = |p: Vec3| (-p).normalize_or_zero();
         let (none, r_only) = estimate_grid(&pts, &grid, false, toward);
-        let (nrm, r_both) = estimate_grid(&pts, &grid, true, toward);
+        // Before the noise rule (`widen`), which no window decides.
+        let (nrm, r_both) = estimate_window(&pts, &grid, true, toward, false);
         assert!(none.is_none());
-        let nrm = nrm.unwrap();
+        let nrm: Vec<Vec3> = nrm.unwrap().iter().map(|f| f.0).collect();
         let k = K_RADIUS.min(pts.len());
         for i in 0..pts.len() {
             let mut half = GRID_R0;
@@ -978,10 +980,8 @@ mod tests {
             assert_eq!(r_only[i].to_bits(), want.to_bits(), "radius of point {i}");
             assert_eq!(r_both[i].to_bits(), want.to_bits(), "radius of point {i}");
             let kn = K_NORMAL.min(near.len());
-            let n = pca_normal(
-                near[..kn].iter().map(|&(_, j)| pts[j as usize]),
-                toward(pts[i]),
-            );
+            let nb: Vec<Vec3> = near[..kn].iter().map(|&(_, j)| pts[j as usize]).collect();
+            let n = crease::fit(pts[i], &nb, toward(pts[i])).0;
             assert!((nrm[i] - n).length() < 1e-6, "normal of point {i}");
         }
     }
