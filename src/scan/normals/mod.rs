@@ -155,11 +155,7 @@ impl<'a> Exact<'a> {
             .map_or(0.0, |&x| f32::from_bits((x >> 32) as u32).max(0.0).sqrt());
         let normal = if need_normal {
             let m = nb.len().min(K_NORMAL);
-            let mut q = [Vec3::ZERO; K_NORMAL];
-            for (q, &x) in q.iter_mut().zip(&nb[..m]) {
-                *q = points[(x & 0xffff_ffff) as usize];
-            }
-            crease::fit(p, &q[..m], toward(p))
+            crease::fit(p, &gather(points, &nb[..m])[..m], toward(p))
         } else {
             Fit::default()
         };
@@ -171,6 +167,15 @@ impl<'a> Exact<'a> {
 /// and along its wider tangent direction (the eigenvalues of the covariance, ascending, m²):
 /// what [`widen`] needs to tell a plane from noise and [`crease`] a bend.
 pub(crate) type Fit = (Vec3, [f32; 3]);
+
+/// The points named by the first [`K_NORMAL`] of `keys` (`(bits << 32) | index`).
+fn gather(points: &[Vec3], keys: &[u64]) -> [Vec3; K_NORMAL] {
+    let mut nb = [Vec3::ZERO; K_NORMAL];
+    for (q, &x) in nb.iter_mut().zip(keys) {
+        *q = points[(x & 0xffff_ffff) as usize];
+    }
+    nb
+}
 
 /// Zeroed radii and (when wanted, else empty) normal fits for `n` points.
 fn outputs(n: usize, need_normals: bool) -> (Vec<f32>, Vec<Fit>) {
@@ -428,10 +433,7 @@ where
                 if kn > 0 && kn < nc {
                     select(&mut cand[..nc], kn - 1, &mut scratch);
                 }
-                let mut nb = [Vec3::ZERO; K_NORMAL];
-                for (q, &x) in nb.iter_mut().zip(&cand[..kn]) {
-                    *q = points[(x & 0xffff_ffff) as usize];
-                }
+                let nb = gather(points, &cand[..kn]);
                 nrm[o] = crease::fit(points[i], &nb[..kn], toward(points[i]));
             }
         }
