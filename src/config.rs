@@ -92,6 +92,8 @@ pub struct ComputeParams {
     pub rays: u32,
     /// Thickness behind observed surfaces (union); `None` = a tenth of the SSAO radius.
     pub thickness: Option<f32>,
+    /// Radius in pixels of the union's edge-aware smoothing over each scan's map (0: none).
+    pub union_filter: u32,
     /// Compute each point's bent normal.
     pub bent_normals: bool,
 }
@@ -119,6 +121,7 @@ impl Default for ComputeParams {
             occlusion: crate::merge::union::Occlusion::Average,
             rays: 32,
             thickness: None,
+            union_filter: crate::merge::union::FILTER_RADIUS,
             bent_normals: false,
         }
     }

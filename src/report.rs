@@ -60,6 +60,11 @@ pub struct Parameters {
     pub projection: String,
     /// True when the single-view SSAO was written instead of the merge.
     pub ssao_only: bool,
+    /// How the merge combined the views.
+    pub occlusion: crate::merge::union::Occlusion,
+    /// The union occlusion's parameters, when its rays ran (`--occlusion union`, bent normals).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub union: Option<crate::merge::union::UnionParams>,
 }
 
 /// What happened to one scan.

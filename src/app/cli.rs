@@ -134,6 +134,12 @@ pub struct MergeArgs {
     /// [default: radius / 10].
     #[arg(long)]
     pub thickness: Option<f32>,
+    /// Radius in pixels of the edge-aware smoothing of `--occlusion union`'s values (and bent
+    /// normals) over each scan's own map, pooling neighbours' rays on the same surface (0:
+    /// off).
+    #[arg(long, default_value_t = mvao::UNION_FILTER,
+          value_parser = clap::value_parser!(u32).range(0..=16))]
+    pub union_filter: u32,
     /// Also write each point's bent normal, the cosine-weighted mean unoccluded direction (by
     /// `--rays` rays through every overlapping view), as `bnx bny bnz`: in the file's frame in
     /// a PLY written back, in world coordinates in a result written across formats.
@@ -660,6 +666,7 @@ impl MergeArgs {
                 occlusion: self.occlusion,
                 rays: self.rays,
                 thickness: self.thickness,
+                union_filter: self.union_filter,
                 bent_normals: self.bent_normals,
             },
             gamma: self.gamma,

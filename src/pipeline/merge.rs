@@ -252,13 +252,14 @@ fn union_one(
         .iter()
         .map(|(pose, m)| m.view(*pose).ok_or_else(internal))
         .collect::<Result<Vec<_>>>()?;
-    let own_maps = own.view(s.pose).ok_or_else(internal)?.maps;
+    let own_view = own.view(s.pose).ok_or_else(internal)?;
     let t = UnionTarget {
         index: i,
         points: &s.points,
         radii,
         own_pixel: pixel,
-        own: own_maps,
+        own: own_view.maps,
+        own_proj: own_view.proj,
         pose: s.pose,
         fallback: own_ssao,
     };

@@ -19,7 +19,7 @@ pub use crate::site::world_bounds;
 use crate::config::{ComputeParams, Config};
 use crate::error::{Error, Result};
 use crate::io::dataset::Placer;
-use crate::merge::union::UnionParams;
+use crate::merge::union::{Occlusion, UnionParams};
 use crate::merge::{MergeParams, MergeStats};
 use crate::products::MergeMaps;
 use crate::progress::Observer;
@@ -149,6 +149,7 @@ fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> Union
         reach,
         thickness: prm.thickness.unwrap_or(0.1 * sp.radius),
         seed: sp.seed,
+        filter: prm.union_filter,
     }
 }
 
@@ -251,6 +252,8 @@ pub struct Outcome {
     pub ssao: SsaoParams,
     /// Merge parameters used.
     pub merge: MergeParams,
+    /// Union occlusion parameters used (the union or bent normals ran).
+    pub union: Option<UnionParams>,
     /// How the defaults were derived.
     pub defaults_note: String,
     /// Per-stage seconds.
@@ -352,6 +355,8 @@ pub fn run(cfg: &Config, obs: &dyn Observer) -> Result<Report> {
         color: format!("{:?}", cfg.color).to_lowercase(),
         projection: format!("{:?}", cfg.compute.projection).to_lowercase(),
         ssao_only: cfg.compute.ssao_only,
+        occlusion: cfg.compute.occlusion,
+        union: oc.union,
     };
     report.scans = oc.scans;
     report.plan = Some(oc.plan);
@@ -452,6 +457,7 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
             border_px: prm.border_px,
             spacing: 0.0,
         },
+        union: None,
         defaults_note: note,
         times: vec![("catalog".into(), cat.secs)],
         bytes_read: vec![("catalog".into(), cat.bytes_read)],
@@ -527,6 +533,8 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
         occlusion: prm.occlusion,
         bent: prm.bent_normals,
     };
+    let rays = (!prm.ssao_only && prm.occlusion == Occlusion::Union) || prm.bent_normals;
+    out.union = rays.then_some(job.union);
     let (read, secs) = merge::run(&job, &files, &mut store, &mut writer, obs)?;
     let stats = store.stats();
     out.map_loads = stats.map_loads;

@@ -37,12 +37,16 @@
 
 use super::{View, ViewMaps};
 use crate::falloff::Falloff;
-use crate::gbuffer::EMPTY;
 use crate::projection::{floor_i64, Model, Projection};
 use crate::rng::Rng;
 use glam::{Affine3A, DMat4, Vec3, Vec3A};
 use rayon::prelude::*;
 use serde::Serialize;
+
+mod filter;
+
+/// Default radius in pixels of the union's edge-aware smoothing ([`UnionParams::filter`]).
+pub const FILTER_RADIUS: u32 = 3;
 
 /// How the merge combines the views.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
@@ -73,6 +77,9 @@ pub struct UnionParams {
     pub thickness: f32,
     /// Seed of the per-point direction patterns.
     pub seed: u64,
+    /// Radius in pixels of the edge-aware smoothing of the results over each scan's own map
+    /// (0: none).
+    pub filter: u32,
 }
 
 /// One view as the rays see it: its maps and the transform from the target's frame.
@@ -292,14 +299,24 @@ fn frame(n: Vec3) -> (Vec3, Vec3) {
     (t1, n.cross(t1))
 }
 
-/// Occlusion of one point and its bent normal (its frame; zero when every ray is blocked).
-fn shade(lenses: &[Lens<'_>], pt: &Shaded, stream: u64, prm: &UnionParams) -> (f32, Vec3) {
+/// What [`shade`] finds at one point.
+#[derive(Debug, Clone, Copy)]
+struct Shade {
+    ao: f32,
+    /// Bent normal (its frame; zero when every ray is blocked).
+    bent: Vec3,
+    /// Distance to the nearest hit of any ray (`∞`: none).
+    nearest: f32,
+}
+
+/// Occlusion of one point, its bent normal and how near its rays hit.
+fn shade(lenses: &[Lens<'_>], pt: &Shaded, stream: u64, prm: &UnionParams) -> Shade {
     let half = prm.rays.div_ceil(2).max(1);
     let mut rng = Rng::new(prm.seed, stream);
     let turn = rng.next_f32();
     let (t1, t2) = frame(pt.n);
     const GOLDEN: f32 = 0.618_034;
-    let (mut sum, mut bent) = (0.0f32, Vec3::ZERO);
+    let (mut sum, mut bent, mut nearest) = (0.0f32, Vec3::ZERO, f32::INFINITY);
     for r in 0..half {
         let u1 = (r as f32 + rng.next_f32()) / half as f32;
         let phi = std::f32::consts::TAU * (r as f32 * GOLDEN + turn).fract();
@@ -309,13 +326,18 @@ fn shade(lenses: &[Lens<'_>], pt: &Shaded, stream: u64, prm: &UnionParams) -> (f
             let omega =
                 (t1 * (side * sr * c) + t2 * (side * sr * s) + pt.n * cz).normalize_or_zero();
             let th = march(lenses, pt, omega, rng.next_f32(), prm);
+            nearest = nearest.min(th);
             let v = prm.falloff.rho(th, prm.tmax);
             sum += v;
             bent += omega * v;
         }
     }
     let a = sum / (2 * half) as f32;
-    (a.clamp(0.0, 1.0), bent.normalize_or_zero())
+    Shade {
+        ao: a.clamp(0.0, 1.0),
+        bent: bent.normalize_or_zero(),
+        nearest,
+    }
 }
 
 /// The scan being shaded by [`union_scan`].
@@ -326,10 +348,12 @@ pub struct UnionTarget<'a> {
     pub points: &'a [Vec3],
     /// Radius per point.
     pub radii: &'a [f32],
-    /// Pixel of each point in its own map ([`EMPTY`] if outside).
+    /// Pixel of each point in its own map ([`crate::gbuffer::EMPTY`] if outside).
     pub own_pixel: &'a [u32],
     /// Its own view's maps (normals of the points).
     pub own: &'a ViewMaps,
+    /// Its own view's projection.
+    pub own_proj: &'a Projection,
     /// Local → world.
     pub pose: DMat4,
     /// Fallback AO of points outside their own map.
@@ -352,19 +376,19 @@ pub fn union_scan(
             rel: Affine3A::from_mat4((v.pose.inverse() * t.pose).as_mat4()),
         })
         .collect();
-    let res: Vec<(f32, Vec3)> = (0..t.points.len())
+    let res: Vec<Shade> = (0..t.points.len())
         .into_par_iter()
         .with_min_len(256)
         .map(|i| {
-            let own = t.fallback.get(i).copied().unwrap_or(1.0);
-            let px = t.own_pixel[i];
-            let Some(rest) = (px != EMPTY).then(|| t.own.rest.get(px as usize)).flatten() else {
-                return (own, Vec3::ZERO);
+            let ao = t.fallback.get(i).copied().unwrap_or(1.0);
+            let unshaded = Shade {
+                ao,
+                bent: Vec3::ZERO,
+                nearest: f32::INFINITY,
             };
-            let n = Vec3::new(rest[0], rest[1], rest[2]).normalize_or_zero();
-            if n == Vec3::ZERO {
-                return (own, Vec3::ZERO);
-            }
+            let Some((_, n)) = filter::shaded(t, i) else {
+                return unshaded;
+            };
             let p = t.points[i];
             let rad = t.radii.get(i).copied().unwrap_or(0.0).max(0.0);
             // Only the views that hold the point's image: the others saw nothing around it.
@@ -397,7 +421,8 @@ pub fn union_scan(
             shade(&sub, &pt, stream, prm)
         })
         .collect();
-    let ao = res.iter().map(|r| r.0).collect();
-    let bn = bent.then(|| res.iter().map(|r| r.1).collect());
-    (ao, bn)
+    let ao = res.iter().map(|r| r.ao).collect();
+    let bn = bent.then(|| res.iter().map(|r| r.bent).collect());
+    let nearest: Vec<f32> = res.iter().map(|r| r.nearest).collect();
+    filter::smooth(t, ao, bn, &nearest, prm)
 }
