@@ -83,6 +83,7 @@ pub struct UnionParams {
 }
 
 /// One view as the rays see it: its maps and the transform from the target's frame.
+#[derive(Clone, Copy)]
 struct Lens<'a> {
     proj: &'a Projection,
     maps: &'a ViewMaps,
@@ -178,11 +179,11 @@ enum Evidence {
 }
 
 /// The point being shaded, in its own frame and in each view's.
-struct Shaded {
+struct Shaded<'s> {
     p: Vec3,
     n: Vec3,
     rad: f32,
-    in_view: Vec<(Vec3, Vec3)>,
+    in_view: &'s [(Vec3, Vec3)],
 }
 
 /// Whether the candidate hit at `q` by view `from` with `ev` holds against the other views.
@@ -242,11 +243,20 @@ fn crossing(
 }
 
 /// Distance along `omega` to the first hit that holds (`∞`: none within the reach).
-fn march(lenses: &[Lens<'_>], pt: &Shaded, omega: Vec3, jit: f32, prm: &UnionParams) -> f32 {
+/// `prev` is scratch room for one reading per lens.
+fn march(
+    lenses: &[Lens<'_>],
+    pt: &Shaded<'_>,
+    omega: Vec3,
+    jit: f32,
+    prm: &UnionParams,
+    prev: &mut Vec<Option<Reading>>,
+) -> f32 {
     let steps = prm.steps.max(1);
     let t0 = pt.rad;
     let span = (prm.reach - t0).max(0.0);
-    let mut prev: Vec<Option<Reading>> = vec![None; lenses.len()];
+    prev.clear();
+    prev.resize(lenses.len(), None);
     let mut t_prev = 0.0f32;
     for k in 0..steps {
         let u = (k as f32 + jit) / steps as f32;
@@ -310,7 +320,13 @@ struct Shade {
 }
 
 /// Occlusion of one point, its bent normal and how near its rays hit.
-fn shade(lenses: &[Lens<'_>], pt: &Shaded, stream: u64, prm: &UnionParams) -> Shade {
+fn shade(
+    lenses: &[Lens<'_>],
+    pt: &Shaded<'_>,
+    stream: u64,
+    prm: &UnionParams,
+    prev: &mut Vec<Option<Reading>>,
+) -> Shade {
     let half = prm.rays.div_ceil(2).max(1);
     let mut rng = Rng::new(prm.seed, stream);
     let turn = rng.next_f32();
@@ -325,7 +341,7 @@ fn shade(lenses: &[Lens<'_>], pt: &Shaded, stream: u64, prm: &UnionParams) -> Sh
             let (s, c) = phi.sin_cos();
             let omega =
                 (t1 * (side * sr * c) + t2 * (side * sr * s) + pt.n * cz).normalize_or_zero();
-            let th = march(lenses, pt, omega, rng.next_f32(), prm);
+            let th = march(lenses, pt, omega, rng.next_f32(), prm, prev);
             nearest = nearest.min(th);
             let v = prm.falloff.rho(th, prm.tmax);
             sum += v;
@@ -360,6 +376,14 @@ pub struct UnionTarget<'a> {
     pub fallback: &'a [f32],
 }
 
+/// Per-thread room of [`union_scan`], so that no point allocates.
+#[derive(Default)]
+struct Scratch<'a> {
+    sub: Vec<Lens<'a>>,
+    in_view: Vec<(Vec3, Vec3)>,
+    prev: Vec<Option<Reading>>,
+}
+
 /// Union occlusion of every point of `t` against `views` (its own among them), and each
 /// point's bent normal in its scan's local frame when `bent` is set.
 pub fn union_scan(
@@ -379,7 +403,7 @@ pub fn union_scan(
     let res: Vec<Shade> = (0..t.points.len())
         .into_par_iter()
         .with_min_len(256)
-        .map(|i| {
+        .map_init(Scratch::default, |sc, i| {
             let ao = t.fallback.get(i).copied().unwrap_or(1.0);
             let unshaded = Shade {
                 ao,
@@ -392,33 +416,23 @@ pub fn union_scan(
             let p = t.points[i];
             let rad = t.radii.get(i).copied().unwrap_or(0.0).max(0.0);
             // Only the views that hold the point's image: the others saw nothing around it.
-            let mine: Vec<usize> = (0..lenses.len())
-                .filter(|&j| lenses[j].read(p).is_some())
-                .collect();
-            let sub: Vec<Lens<'_>> = mine
-                .iter()
-                .map(|&j| Lens {
-                    proj: lenses[j].proj,
-                    maps: lenses[j].maps,
-                    rel: lenses[j].rel,
-                })
-                .collect();
-            let in_view = sub
-                .iter()
-                .map(|l| {
-                    let pj: Vec3 = l.rel.transform_point3a(Vec3A::from(p)).into();
-                    let nj: Vec3 = l.rel.transform_vector3a(Vec3A::from(n)).into();
-                    (pj, nj)
-                })
-                .collect();
+            sc.sub.clear();
+            sc.sub
+                .extend(lenses.iter().filter(|l| l.read(p).is_some()).copied());
+            sc.in_view.clear();
+            sc.in_view.extend(sc.sub.iter().map(|l| {
+                let pj: Vec3 = l.rel.transform_point3a(Vec3A::from(p)).into();
+                let nj: Vec3 = l.rel.transform_vector3a(Vec3A::from(n)).into();
+                (pj, nj)
+            }));
             let pt = Shaded {
                 p: p + n * (0.5 * rad),
                 n,
                 rad,
-                in_view,
+                in_view: &sc.in_view,
             };
             let stream = ((t.index as u64) << 40) ^ i as u64;
-            shade(&sub, &pt, stream, prm)
+            shade(&sc.sub, &pt, stream, prm, &mut sc.prev)
         })
         .collect();
     let ao = res.iter().map(|r| r.ao).collect();
