@@ -28,7 +28,8 @@
 //! Surface evidence holds when the occupied weight is at least the free weight; inferred
 //! evidence holds only where no view saw through the point (seeing through is an
 //! observation, occupancy behind a surface a guess). The ray's hit distance is the first
-//! candidate that holds; `A(p)` is the mean of `ρ(t_hit)` over the rays.
+//! candidate that holds; `A(p)` is the mean of `ρ(t_hit)` over the rays, then pooled with the
+//! values of neighbouring points of the same surface (`filter.rs`).
 //!
 //! Same-surface rule: evidence from a pixel whose stored point lies within
 //! `h₀ = 2 (rad(p) + rad)` of `p`'s tangent plane with a normal within 60° of `n` is `p`'s
