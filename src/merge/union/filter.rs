@@ -70,12 +70,17 @@ pub(super) fn smooth(
         return (ao, bent);
     }
     let rad = |i: usize| t.radii.get(i).copied().unwrap_or(0.0).max(0.0);
+    let n_pts = ao.len().min(t.points.len());
+    // Each point's pixel and normal where it lies on its pixel's stored surface: the points
+    // that pool, and that are smoothed.
+    let member: Vec<Option<(usize, Vec3)>> = (0..n_pts)
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|i| shaded(t, i).filter(|&(px, n)| on_plane(t.points[i], n, rad(i), t.own.near[px])))
+        .collect();
     let mut pools = vec![Pool::default(); cells];
-    for i in 0..ao.len().min(t.points.len()) {
-        let Some((px, n)) = shaded(t, i) else {
-            continue;
-        };
-        if on_plane(t.points[i], n, rad(i), t.own.near[px]) {
+    for (i, m) in member.iter().enumerate() {
+        if let Some((px, _)) = *m {
             let pool = &mut pools[px];
             pool.ao += ao[i];
             pool.bent += bent.as_ref().map_or(Vec3::ZERO, |b| b[i]);
@@ -93,11 +98,8 @@ pub(super) fn smooth(
         .into_par_iter()
         .with_min_len(1024)
         .map(|i| {
-            let (px, n) = shaded(t, i)?;
-            let (p, rad_p) = (*t.points.get(i)?, rad(i));
-            if !on_plane(p, n, rad_p, t.own.near[px]) {
-                return None;
-            }
+            let (px, n) = (*member.get(i)?)?;
+            let (p, rad_p) = (t.points[i], rad(i));
             let (x0, y0) = ((px as i64) % w, (px as i64) / w);
             let sigma = (SIGMA_HIT * nearest.get(i).copied().unwrap_or(f32::INFINITY))
                 .min(sigma_max)
