@@ -15,8 +15,11 @@
 //!   span of the stored surface: the ray crossed the surface view j observed (surface
 //!   evidence, at the interpolated crossing); a change with a jump in depth is the ray
 //!   passing into the shadow of a surface from the side, not a crossing;
-//! - otherwise `m/4 < s ≤ T`: behind the observed surface within the thickness `T`
-//!   (inferred evidence);
+//! - otherwise `m/4 < s ≤ max(T, P)`: behind the observed surface within the thickness `T`,
+//!   or within one pixel `P` of view j at that depth where its pixels are coarser (a map
+//!   cannot tell a solid from a shell thinner than its pixels), and behind the stored surface
+//!   of the four neighbouring pixels too (inferred evidence; beside a silhouette, where a
+//!   neighbour saw past the sample or is empty, the space behind is not inferred solid);
 //! - beyond, or an empty pixel, or outside the map: unknown.
 //!
 //! `m` is the stored point's radius (its spacing). A candidate hit is the nearest
@@ -24,7 +27,7 @@
 //! with weight `1 / rad` of its pixel (sharp near views outweigh coarse far ones): free
 //! where it saw past the point (in its pixel and the four neighbours, so a silhouette
 //! quantised by one pixel does not veto), occupied where the point lies from `m` in front of
-//! its surface to `T` behind.
+//! its surface to `max(T, P)` behind.
 //! Surface evidence holds when the occupied weight is at least the free weight; inferred
 //! evidence holds only where no view saw through the point (seeing through is an
 //! observation, occupancy behind a surface a guess). The ray's hit distance is the first
@@ -89,6 +92,22 @@ struct Lens<'a> {
     proj: &'a Projection,
     maps: &'a ViewMaps,
     rel: Affine3A,
+    /// A pixel's size in metres at depth `d` is `pixel.0 + pixel.1 · d` (at the map's centre).
+    pixel: (f32, f32),
+}
+
+/// [`Lens::pixel`] of `proj`: a constant for an orthographic view, proportional to the depth
+/// for the others.
+fn pixel_size(proj: &Projection) -> (f32, f32) {
+    let (x, y) = (0.5 * proj.width as f32, 0.5 * proj.height as f32);
+    let at = |d: f32| {
+        let probe = 0.01 * d;
+        let (rx, ry) = proj.disk_radius(probe, d, x, y);
+        probe / rx.min(ry).max(1e-9)
+    };
+    let (s1, s2) = (at(1.0), at(2.0));
+    let slope = (s2 - s1).max(0.0);
+    ((s1 - slope).max(0.0), slope)
 }
 
 /// What one view says about a 3-D point.
@@ -143,6 +162,12 @@ impl Lens<'_> {
         })
     }
 
+    /// The size of a pixel (metres) at `r`'s point: the finest detail the view resolves there.
+    #[inline]
+    fn pixel_size(&self, r: &Reading) -> f32 {
+        self.pixel.0 + self.pixel.1 * r.d
+    }
+
     /// Whether the view saw past `r`'s point in its pixel and the four neighbours.
     fn sees_through(&self, r: &Reading) -> bool {
         if r.s >= -2.0 * r.rad {
@@ -156,6 +181,21 @@ impl Lens<'_> {
             {
                 Some((dd, rad)) => r.d < dd - 2.0 * rad,
                 None => true,
+            }
+        })
+    }
+
+    /// Whether `r`'s point lies behind the surface in all four neighbouring pixels too: no
+    /// neighbour saw past it (a silhouette's neighbour, or an empty one, did).
+    fn enclosed(&self, r: &Reading) -> bool {
+        [(1, 0), (-1, 0), (0, 1), (0, -1)].iter().all(|&(dx, dy)| {
+            match self
+                .proj
+                .pixel_at(r.px.0 + dx, r.px.1 + dy)
+                .and_then(|i| self.stored(i))
+            {
+                Some((dd, rad)) => r.d >= dd - 2.0 * rad,
+                None => false,
             }
         })
     }
@@ -208,11 +248,20 @@ fn holds(
                 return false;
             }
             free += 1.0 / r.rad;
-        } else if r.s >= -r.rad && r.s <= r.rad.max(t_occ) {
+        } else if r.s >= -r.rad && r.s <= solid_depth(t_occ, l.pixel_size(&r)) {
             occ += 1.0 / r.rad;
         }
     }
     occ >= free
+}
+
+/// How far behind a stored surface a view takes space as solid: the thickness, but never less
+/// than the view's pixel there (`pixel` metres), the finest detail it resolves: a coarse map
+/// cannot tell a solid from a shell thinner than its pixels, and taking every surface as
+/// thinner than that lets rays through the corners its pixels straddle.
+#[inline]
+fn solid_depth(thickness: f32, pixel: f32) -> f32 {
+    thickness.max(pixel)
 }
 
 /// Where the ray crossed view `l`'s stored surface between a sample in front of it (`a`)
@@ -274,14 +323,15 @@ fn march(
             // Behind the stored surface by more than noise: the ray crossed it since the
             // previous sample (surface evidence at the crossing) or lies within the
             // thickness (inferred).
+            let thick = solid_depth(prm.thickness, l.pixel_size(&c));
             let cand = match prev[j] {
                 _ if c.s <= 0.25 * c.rad => None,
                 Some(pv) if pv.s < 0.0 => match crossing(l, pt.p, omega, (t_prev, pv), (t, c)) {
                     Some(tc) => Some((tc, Evidence::Surface)),
-                    None if c.s <= prm.thickness => Some((t, Evidence::Inferred)),
+                    None if c.s <= thick && l.enclosed(&c) => Some((t, Evidence::Inferred)),
                     None => None,
                 },
-                _ if c.s <= prm.thickness => Some((t, Evidence::Inferred)),
+                _ if c.s <= thick && l.enclosed(&c) => Some((t, Evidence::Inferred)),
                 _ => None,
             };
             prev[j] = cur;
@@ -399,6 +449,7 @@ pub fn union_scan(
             proj: v.proj,
             maps: v.maps,
             rel: Affine3A::from_mat4((v.pose.inverse() * t.pose).as_mat4()),
+            pixel: pixel_size(v.proj),
         })
         .collect();
     let res: Vec<Shade> = (0..t.points.len())
