@@ -255,7 +255,7 @@ fn bent_normal_beside_a_wall_tilts_away() {
 
 #[test]
 fn coarse_view_takes_a_pixel_behind_its_surface_as_solid() {
-    // A 0.6 m cube on the floor seen by one coarse camera (about 5 cm pixels at the cube)
+    // A 0.6 m cube on the floor seen by one coarse camera (about 4 cm pixels at the cube)
     // from its front and above; the floor points beside the cube. Rays into the cube through
     // the side faces the camera sees edge-on are behind the front face, not through it, and
     // with a thickness far below a pixel (1 mm) only the pixel's floor infers them solid.
