@@ -170,34 +170,31 @@ impl Lens<'_> {
 
     /// Whether the view saw past `r`'s point in its pixel and the four neighbours.
     fn sees_through(&self, r: &Reading) -> bool {
-        if r.s >= -2.0 * r.rad {
-            return false;
-        }
-        [(1, 0), (-1, 0), (0, 1), (0, -1)].iter().all(|&(dx, dy)| {
-            match self
-                .proj
-                .pixel_at(r.px.0 + dx, r.px.1 + dy)
-                .and_then(|i| self.stored(i))
-            {
-                Some((dd, rad)) => r.d < dd - 2.0 * rad,
-                None => true,
-            }
-        })
+        r.s < -2.0 * r.rad && self.neighbours_past(r) == 4
     }
 
     /// Whether `r`'s point lies behind the surface in all four neighbouring pixels too: no
     /// neighbour saw past it (a silhouette's neighbour, or an empty one, did).
     fn enclosed(&self, r: &Reading) -> bool {
-        [(1, 0), (-1, 0), (0, 1), (0, -1)].iter().all(|&(dx, dy)| {
-            match self
-                .proj
-                .pixel_at(r.px.0 + dx, r.px.1 + dy)
-                .and_then(|i| self.stored(i))
-            {
-                Some((dd, rad)) => r.d >= dd - 2.0 * rad,
-                None => false,
-            }
-        })
+        self.neighbours_past(r) == 0
+    }
+
+    /// How many of the four pixels beside `r`'s saw past its point by more than twice their
+    /// radius, or are empty or outside the map.
+    fn neighbours_past(&self, r: &Reading) -> usize {
+        [(1, 0), (-1, 0), (0, 1), (0, -1)]
+            .iter()
+            .filter(|&&(dx, dy)| {
+                match self
+                    .proj
+                    .pixel_at(r.px.0 + dx, r.px.1 + dy)
+                    .and_then(|i| self.stored(i))
+                {
+                    Some((dd, rad)) => r.d < dd - 2.0 * rad,
+                    None => true,
+                }
+            })
+            .count()
     }
 
     /// Whether the stored point of pixel `idx` is `p`'s own surface (see the module docs);
