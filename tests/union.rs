@@ -291,3 +291,35 @@ fn coarse_view_takes_a_pixel_behind_its_surface_as_solid() {
     eprintln!("single bias {b_single:+.3}; union {mean:.3} (bias {bias:+.3}), {k} pts");
     assert!(bias.abs() <= 0.1, "union bias {bias}");
 }
+
+#[test]
+fn floor_seen_at_grazing_incidence_stops_the_rays() {
+    // The underside of a slab 0.6 m above the floor, seen from below by A (whose frame holds
+    // no floor); B, 15 cm above the floor 3 m away, sees the floor under the slab at about
+    // 3° of incidence, where its stored depth steps by ~20 cm from one pixel row to the next.
+    // The rays from the slab down to the floor cross it only in B's map.
+    let scene = Scene {
+        prims: vec![
+            floor(20.0),
+            quad(
+                DVec3::new(0.0, 0.0, 0.6),
+                DVec3::X * 1.2,
+                DVec3::Y * 1.2,
+                -DVec3::Z,
+            ),
+        ],
+    };
+    let st = [
+        cam([-0.8, 0.0, 0.1], [0.0, 0.0, 0.6], 50.0, 128),
+        cam([-3.0, 0.0, 0.15], [0.0, 0.0, 0.2], 50.0, 192),
+    ];
+    let tmax = 1.0;
+    let (u, truth) = run(&scene, &st, 0.5, tmax as f32, Occlusion::Union, false);
+    let pick = |t: &Truth| t.n.z < -0.9 && t.p.x.abs() < 0.3 && t.p.y.abs() < 0.3;
+    let (b_single, m_single, _) = score(&scene, &truth[0], &u[0].ssao, tmax, pick);
+    let (bias, mean, k) = score(&scene, &truth[0], &u[0].ao, tmax, pick);
+    eprintln!(
+        "single {m_single:.3} (bias {b_single:+.3}); union {mean:.3} (bias {bias:+.3}), {k} pts"
+    );
+    assert!(bias.abs() <= 0.03, "union bias {bias}");
+}

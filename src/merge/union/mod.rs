@@ -13,8 +13,13 @@
 //! - a change of side since the previous sample (`s` from negative to above `m/4`), the
 //!   segment halved four times around it, with both ends within `m` plus the depth they
 //!   span of the stored surface: the ray crossed the surface view j observed (surface
-//!   evidence, at the interpolated crossing); a change with a jump in depth is the ray
-//!   passing into the shadow of a surface from the side, not a crossing;
+//!   evidence, at the interpolated crossing). Otherwise the segment is halved on until its
+//!   ends fall in neighbouring pixels, and it is a crossing when their stored points lie on
+//!   one surface (normals within 30°, the segment between them within about 17° of both
+//!   tangent planes and no longer than a pixel or two stretched by the incidence): a surface
+//!   seen at grazing incidence steps in depth by far more than its noise from pixel to pixel.
+//!   A change across a jump in depth is the ray passing into the shadow of a surface from
+//!   the side, not a crossing;
 //! - otherwise `m/4 < s ≤ max(T, P)`: behind the observed surface within the thickness `T`,
 //!   or within one pixel `P` of view j at that depth where its pixels are coarser (a map
 //!   cannot tell a solid from a shell thinner than its pixels), and behind the stored surface
@@ -43,7 +48,7 @@ use super::{View, ViewMaps};
 use crate::falloff::Falloff;
 use crate::projection::{floor_i64, Model, Projection};
 use crate::rng::Rng;
-use glam::{Affine3A, DMat4, Vec3, Vec3A};
+use glam::{Affine3A, DMat4, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -132,14 +137,17 @@ impl Lens<'_> {
         if near.w == f32::NEG_INFINITY {
             return None;
         }
-        // The depth `project` gives, without the angles: the distance to the sensor, or the
-        // distance along an orthographic view's axis.
-        let p = near.truncate();
-        let d = match self.proj.model {
+        Some((self.depth(near.truncate()), near.w.max(1e-6)))
+    }
+
+    /// The depth `project` gives `p` (view frame), without the angles: the distance to the
+    /// sensor, or the distance along an orthographic view's axis.
+    #[inline]
+    fn depth(&self, p: Vec3) -> f32 {
+        match self.proj.model {
             Model::Ortho { toward, depth0, .. } => depth0 - toward.dot(p),
             _ => p.length(),
-        };
-        Some((d, near.w.max(1e-6)))
+        }
     }
 
     /// The view's reading at `q` (target frame).
@@ -195,6 +203,49 @@ impl Lens<'_> {
                 }
             })
             .count()
+    }
+
+    /// Whether the points stored at two neighbouring readings' pixels lie on one surface:
+    /// normals within 30°, and the segment between them within about 17° of both tangent
+    /// planes (up to their radii) and no longer than the pixels' footprint there. On a surface
+    /// seen at grazing incidence the segment lies in the surface however long; across a
+    /// silhouette it runs from the nearer object to what lies behind, along the line of sight,
+    /// through one of the tangent planes or longer than a pixel of either surface (two columns
+    /// seen one behind the other).
+    fn continuous(&self, a: &Reading, b: &Reading) -> bool {
+        if a.idx == b.idx {
+            return true;
+        }
+        let m = self.maps;
+        let (Some(pa), Some(pb), Some(ra), Some(rb)) = (
+            m.near.get(a.idx),
+            m.near.get(b.idx),
+            m.rest.get(a.idx),
+            m.rest.get(b.idx),
+        ) else {
+            return false;
+        };
+        let e = pb.truncate() - pa.truncate();
+        let len = e.length();
+        let (na, nb) = (
+            Vec3::new(ra[0], ra[1], ra[2]),
+            Vec3::new(rb[0], rb[1], rb[2]),
+        );
+        let slack = a.rad + b.rad;
+        // Neighbouring pixels of one surface are at most a diagonal pixel apart across the
+        // line of sight, stretched by the incidence (twice that for noise): a longer segment
+        // bridges a gap, as between two columns seen one behind the other.
+        let fits = |q: Vec4, n: Vec3| {
+            let q = q.truncate();
+            let v = match self.proj.model {
+                Model::Ortho { toward, .. } => toward,
+                _ => q.normalize_or_zero(),
+            };
+            let px = self.pixel.0 + self.pixel.1 * self.depth(q);
+            let across = 2.0 * std::f32::consts::SQRT_2 * px / n.dot(v).abs().max(0.02);
+            n.dot(e).abs() <= 0.3 * len + slack && len <= across + slack
+        };
+        na.dot(nb) >= 0.866 && fits(*pa, na) && fits(*pb, nb)
     }
 
     /// Whether the stored point of pixel `idx` is `p`'s own surface (see the module docs);
@@ -263,8 +314,10 @@ fn solid_depth(thickness: f32, pixel: f32) -> f32 {
 
 /// Where the ray crossed view `l`'s stored surface between a sample in front of it (`a`)
 /// and one behind (`b`): the segment is halved four times around the change of side; a
-/// change between samples close in depth to the stored surface is a crossing, one with a
-/// jump (the ray passing into a shadow from the side) is not.
+/// change between samples close in depth to the stored surface is a crossing, and so is one
+/// between neighbouring pixels whose stored points lie on one surface
+/// ([`Lens::continuous`]); one across a jump (the ray passing into a shadow from the side)
+/// is not.
 fn crossing(
     l: &Lens<'_>,
     p: Vec3,
@@ -272,21 +325,41 @@ fn crossing(
     mut a: (f32, Reading),
     mut b: (f32, Reading),
 ) -> Option<f32> {
-    for _ in 0..4 {
+    let halve = |a: &mut (f32, Reading), b: &mut (f32, Reading)| -> Option<()> {
         let tm = 0.5 * (a.0 + b.0);
         let m = l.read(p + omega * tm)?;
         if m.s < 0.0 {
-            a = (tm, m);
+            *a = (tm, m);
         } else {
-            b = (tm, m);
+            *b = (tm, m);
         }
+        Some(())
+    };
+    for _ in 0..4 {
+        halve(&mut a, &mut b)?;
     }
-    let step = (b.1.d - a.1.d).abs();
-    let near = |r: &Reading| r.s.abs() <= r.rad + step;
-    (near(&a.1) && near(&b.1)).then(|| {
+    let at = |a: &(f32, Reading), b: &(f32, Reading)| {
         let f = (a.1.s / (a.1.s - b.1.s)).clamp(0.0, 1.0);
         a.0 + f * (b.0 - a.0)
-    })
+    };
+    let step = (b.1.d - a.1.d).abs();
+    let near = |r: &Reading| r.s.abs() <= r.rad + step;
+    if near(&a.1) && near(&b.1) {
+        return Some(at(&a, &b));
+    }
+    // Not close in depth: the ray passed into the shadow of a surface from the side, or
+    // crossed a surface seen at grazing incidence, whose stored depth steps by more than its
+    // noise from one pixel to the next. Halve on to neighbouring pixels and ask whether their
+    // stored points lie on one surface.
+    let adjacent =
+        |a: &Reading, b: &Reading| (a.px.0 - b.px.0).abs().max((a.px.1 - b.px.1).abs()) <= 1;
+    for _ in 0..8 {
+        if adjacent(&a.1, &b.1) {
+            break;
+        }
+        halve(&mut a, &mut b)?;
+    }
+    (adjacent(&a.1, &b.1) && l.continuous(&a.1, &b.1)).then(|| at(&a, &b))
 }
 
 /// Distance along `omega` to the first hit that holds (`∞`: none within the reach).
