@@ -323,3 +323,26 @@ fn floor_seen_at_grazing_incidence_stops_the_rays() {
     );
     assert!(bias.abs() <= 0.03, "union bias {bias}");
 }
+
+#[test]
+fn far_face_of_a_panel_thinner_than_a_pixel_stays_open() {
+    // A 2 cm panel standing free; B sees its front face from 3 m with 5 cm pixels, so its
+    // solid behind that face reaches past the back face; A sees the back face, which nothing
+    // overlooks within t_max.
+    let scene = Scene {
+        prims: vec![Prim::Box {
+            min: DVec3::new(-0.5, -0.01, 0.0),
+            max: DVec3::new(0.5, 0.01, 1.0),
+        }],
+    };
+    let st = [
+        cam([0.0, 1.0, 0.5], [0.0, 0.0, 0.5], 60.0, 96),
+        cam([0.0, -3.0, 0.5], [0.0, 0.0, 0.5], 60.0, 64),
+    ];
+    let tmax = 0.4;
+    let (u, truth) = run(&scene, &st, 0.2, tmax as f32, Occlusion::Union, false);
+    let pick = |t: &Truth| t.n.y > 0.9 && t.p.x.abs() < 0.3 && (t.p.z - 0.5).abs() < 0.3;
+    let (bias, mean, k) = score(&scene, &truth[0], &u[0].ao, tmax, pick);
+    eprintln!("union {mean:.3} (bias {bias:+.3}), {k} pts");
+    assert!(bias.abs() <= 0.02, "union bias {bias}");
+}

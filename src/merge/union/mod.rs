@@ -43,6 +43,10 @@
 //! `h₀ = 2 (rad(p) + rad)` of `p`'s tangent plane with a normal within 60° of `n` is `p`'s
 //! own surface as that view sampled it (with its noise and registration error), and is
 //! ignored; a wall meeting the surface (a normal far from `n`) still counts.
+//!
+//! Far-face rule: a view in whose solid depth `p` lies, facing away from it, infers nothing
+//! for `p`'s rays: `p` is then the far face of an element thinner than that depth, and the
+//! view knows nothing of the space beyond it.
 
 use super::{View, ViewMaps};
 use crate::falloff::Falloff;
@@ -267,12 +271,41 @@ enum Evidence {
     Inferred,
 }
 
+/// The shaded point as one view sees it.
+#[derive(Debug, Clone, Copy)]
+struct InView {
+    /// The point and its normal in the view's frame.
+    p: Vec3,
+    n: Vec3,
+    /// Whether the view's solid behind its surfaces counts for the point's rays: not when the
+    /// point faces away from the view from within that solid, the far face of an element
+    /// thinner than the view's solid depth (a door jamb, a thin wall seen from its other
+    /// side). Everything above the point's tangent plane is outside that element, and the
+    /// view knows nothing of the space beyond it.
+    infers: bool,
+}
+
+impl InView {
+    fn new(l: &Lens<'_>, p: Vec3, n: Vec3, thickness: f32) -> InView {
+        let pj: Vec3 = l.rel.transform_point3a(Vec3A::from(p)).into();
+        let nj: Vec3 = l.rel.transform_vector3a(Vec3A::from(n)).into();
+        let within = l
+            .read(p)
+            .is_some_and(|r| r.s > 0.0 && r.s <= solid_depth(thickness, l.pixel_size(&r)));
+        InView {
+            p: pj,
+            n: nj,
+            infers: !(within && nj.dot(l.proj.toward_sensor(pj)) < 0.0),
+        }
+    }
+}
+
 /// The point being shaded, in its own frame and in each view's.
 struct Shaded<'s> {
     p: Vec3,
     n: Vec3,
     rad: f32,
-    in_view: &'s [(Vec3, Vec3)],
+    in_view: &'s [InView],
 }
 
 /// Whether the candidate hit at `q` by view `from` with `ev` holds against the other views.
@@ -389,7 +422,11 @@ fn march(
                 prev[j] = None;
                 continue;
             };
-            let (pj, nj) = pt.in_view[j];
+            let InView {
+                p: pj,
+                n: nj,
+                infers,
+            } = pt.in_view[j];
             // Behind the stored surface by more than noise: the ray crossed it since the
             // previous sample (surface evidence at the crossing) or lies within the
             // thickness (inferred).
@@ -398,10 +435,12 @@ fn march(
                 _ if c.s <= 0.25 * c.rad => None,
                 Some(pv) if pv.s < 0.0 => match crossing(l, pt.p, omega, (t_prev, pv), (t, c)) {
                     Some(tc) => Some((tc, Evidence::Surface)),
-                    None if c.s <= thick && l.enclosed(&c) => Some((t, Evidence::Inferred)),
+                    None if infers && c.s <= thick && l.enclosed(&c) => {
+                        Some((t, Evidence::Inferred))
+                    }
                     None => None,
                 },
-                _ if c.s <= thick && l.enclosed(&c) => Some((t, Evidence::Inferred)),
+                _ if infers && c.s <= thick && l.enclosed(&c) => Some((t, Evidence::Inferred)),
                 _ => None,
             };
             prev[j] = cur;
@@ -501,7 +540,7 @@ pub struct UnionTarget<'a> {
 #[derive(Default)]
 struct Scratch<'a> {
     sub: Vec<Lens<'a>>,
-    in_view: Vec<(Vec3, Vec3)>,
+    in_view: Vec<InView>,
     prev: Vec<Option<Reading>>,
 }
 
@@ -542,11 +581,8 @@ pub fn union_scan(
             sc.sub
                 .extend(lenses.iter().filter(|l| l.read(p).is_some()).copied());
             sc.in_view.clear();
-            sc.in_view.extend(sc.sub.iter().map(|l| {
-                let pj: Vec3 = l.rel.transform_point3a(Vec3A::from(p)).into();
-                let nj: Vec3 = l.rel.transform_vector3a(Vec3A::from(n)).into();
-                (pj, nj)
-            }));
+            sc.in_view
+                .extend(sc.sub.iter().map(|l| InView::new(l, p, n, prm.thickness)));
             let pt = Shaded {
                 p: p + n * (0.5 * rad),
                 n,
