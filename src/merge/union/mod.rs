@@ -174,10 +174,10 @@ impl Lens<'_> {
         })
     }
 
-    /// The size of a pixel (metres) at `r`'s point: the finest detail the view resolves there.
+    /// The size of a pixel (metres) at depth `d`: the finest detail the view resolves there.
     #[inline]
-    fn pixel_size(&self, r: &Reading) -> f32 {
-        self.pixel.0 + self.pixel.1 * r.d
+    fn pixel_size(&self, d: f32) -> f32 {
+        self.pixel.0 + self.pixel.1 * d
     }
 
     /// Whether the view saw past `r`'s point in its pixel and the four neighbours.
@@ -245,7 +245,7 @@ impl Lens<'_> {
                 Model::Ortho { toward, .. } => toward,
                 _ => q.normalize_or_zero(),
             };
-            let px = self.pixel.0 + self.pixel.1 * self.depth(q);
+            let px = self.pixel_size(self.depth(q));
             let across = 2.0 * std::f32::consts::SQRT_2 * px / n.dot(v).abs().max(0.02);
             n.dot(e).abs() <= 0.3 * len + slack && len <= across + slack
         };
@@ -286,12 +286,11 @@ struct InView {
 }
 
 impl InView {
-    fn new(l: &Lens<'_>, p: Vec3, n: Vec3, thickness: f32) -> InView {
+    /// `r` is the view's reading at `p`.
+    fn new(l: &Lens<'_>, r: &Reading, p: Vec3, n: Vec3, thickness: f32) -> InView {
         let pj: Vec3 = l.rel.transform_point3a(Vec3A::from(p)).into();
         let nj: Vec3 = l.rel.transform_vector3a(Vec3A::from(n)).into();
-        let within = l
-            .read(p)
-            .is_some_and(|r| r.s > 0.0 && r.s <= solid_depth(thickness, l.pixel_size(&r)));
+        let within = r.s > 0.0 && r.s <= solid_depth(thickness, l.pixel_size(r.d));
         InView {
             p: pj,
             n: nj,
@@ -329,7 +328,7 @@ fn holds(
                 return false;
             }
             free += 1.0 / r.rad;
-        } else if r.s >= -r.rad && r.s <= solid_depth(t_occ, l.pixel_size(&r)) {
+        } else if r.s >= -r.rad && r.s <= solid_depth(t_occ, l.pixel_size(r.d)) {
             occ += 1.0 / r.rad;
         }
     }
@@ -430,7 +429,7 @@ fn march(
             // Behind the stored surface by more than noise: the ray crossed it since the
             // previous sample (surface evidence at the crossing) or lies within the
             // thickness (inferred).
-            let thick = solid_depth(prm.thickness, l.pixel_size(&c));
+            let thick = solid_depth(prm.thickness, l.pixel_size(c.d));
             let cand = match prev[j] {
                 _ if c.s <= 0.25 * c.rad => None,
                 Some(pv) if pv.s < 0.0 => match crossing(l, pt.p, omega, (t_prev, pv), (t, c)) {
@@ -578,11 +577,13 @@ pub fn union_scan(
             let rad = t.radii.get(i).copied().unwrap_or(0.0).max(0.0);
             // Only the views that hold the point's image: the others saw nothing around it.
             sc.sub.clear();
-            sc.sub
-                .extend(lenses.iter().filter(|l| l.read(p).is_some()).copied());
             sc.in_view.clear();
-            sc.in_view
-                .extend(sc.sub.iter().map(|l| InView::new(l, p, n, prm.thickness)));
+            for l in &lenses {
+                if let Some(r) = l.read(p) {
+                    sc.sub.push(*l);
+                    sc.in_view.push(InView::new(l, &r, p, n, prm.thickness));
+                }
+            }
             let pt = Shaded {
                 p: p + n * (0.5 * rad),
                 n,
