@@ -137,6 +137,7 @@ pub fn compute(g: &GBuffer, proj: &Projection, p: &SsaoParams) -> AoMap {
     let adaptive = p.sampling == Sampling::Adaptive;
     let mut map = match p.estimator {
         Estimator::Paper => paper::ssao(g, proj, p),
+        Estimator::Horizon if farfield::applies(p) && adaptive => multires::far_field(g, proj, p),
         Estimator::Horizon if farfield::applies(p) => farfield::ssao(g, proj, p),
         Estimator::Horizon if adaptive => multires::ssao(g, proj, p),
         Estimator::Horizon => horizon::ssao(g, proj, p),

@@ -48,6 +48,11 @@
 //! pixel and half-plane is at most `NEAR + 2·BLOCK` samples plus the hull vertices of
 //! `length / BLOCK` blocks: it depends on the map's size, never on `t_max`.
 //!
+//! On straight lines (pinhole and orthographic maps) the same horizons are found in one pass
+//! per line instead (`screen.rs`): the hull of the samples passed so far, kept on a stack in a
+//! chart where the sensor is at infinity, answers every pixel snapped to the line; the block
+//! walk stays for great circles.
+//!
 //! A sample's in-plane coordinates are taken as in the horizon march (its position along the
 //! half-plane's tangent line and its height above `p`'s tangent plane), so a sample of `p`'s
 //! own plane never occludes `p` even when the snapped line passes beside `p`.
@@ -65,14 +70,15 @@
 
 use super::{AoMap, SsaoParams};
 use crate::gbuffer::GBuffer;
-use crate::projection::Projection;
+use crate::projection::{fast_atan2, Model, Projection};
 use glam::Vec3A;
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
 
+mod screen;
 mod sweep;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use sweep::Family;
 
@@ -84,6 +90,13 @@ const _: () = assert!(
     BLOCK > 0 && BLOCK.count_ones() == 1,
     "blocks are aligned by masks"
 );
+/// A horizon counts as raised (for a pixel's reach) when its cosine exceeds the tangent
+/// plane's by this much: samples of the pixel's own plane differ from it by rounding only.
+const RAISE: f32 = 1e-4;
+/// A sample whose offset from the receiver lies within the half-plane by less than this share
+/// of its length is beside it, not in it (a neighbour across the line of a pixel the line
+/// passes beside).
+const BESIDE: f32 = 0.05;
 /// Largest number of line families.
 const MAX_FAMILIES: usize = 64;
 /// Rows and columns of the pixel tiles evaluated family by family: neighbouring receivers
@@ -99,15 +112,41 @@ pub fn applies(prm: &SsaoParams) -> bool {
 }
 
 /// Computes the unblurred plain ambient occlusion of every valid pixel from `4 × directions`
-/// line families (at most 64). A projection whose size differs from the G-buffer's flags every valid pixel.
+/// line families (at most 64). A projection whose size differs from the G-buffer's flags every
+/// valid pixel.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
+    ssao_masked(g, proj, prm, None).0
+}
+
+/// [`ssao`] evaluated only at the pixels `only` marks (all valid pixels when `None`; the others
+/// keep 1, unflagged), and each pixel's *reach*: the distance to the nearest sample that bounds
+/// the blocked arc of one of its half-planes (∞ where no horizon rises above the tangent
+/// plane). Obscurance changes on the scale of the reach as the pixel moves.
+pub(crate) fn ssao_masked(
+    g: &GBuffer,
+    proj: &Projection,
+    prm: &SsaoParams,
+    only: Option<&[bool]>,
+) -> (AoMap, Vec<f32>) {
     if let Some(map) = super::unmarchable(g, proj) {
-        return map;
+        let reach = vec![f32::INFINITY; map.ao.len()];
+        return (map, reach);
     }
+    let k = (4 * prm.directions.max(1) as usize).min(MAX_FAMILIES);
+    if matches!(proj.model, Model::Equirect { .. }) {
+        walk(g, proj, k, only)
+    } else {
+        screen::ssao(g, proj, k, only)
+    }
+}
+
+/// The far field of the pixels `only` marks by each one's own walk along the lines of `k`
+/// families, over block hulls.
+fn walk(g: &GBuffer, proj: &Projection, k: usize, only: Option<&[bool]>) -> (AoMap, Vec<f32>) {
     let n = g.width * g.height;
+    let mut reach = crate::par::filled(n, f32::INFINITY);
     let mut ao = crate::par::filled(n, 1.0f32);
     let mut flag = crate::par::filled(n, false);
-    let k = (4 * prm.directions.max(1) as usize).min(MAX_FAMILIES);
     let fams: Vec<Family> = (0..k).map(|f| Family::new(g, proj, f, k)).collect();
     let pts: Vec<Vec3A> = g.position.iter().map(|&p| Vec3A::from(p)).collect();
     let ctx = Ctx {
@@ -115,23 +154,26 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
         proj,
         pts: &pts,
         fams: &fams,
+        only,
     };
     let w = g.width;
     ao.par_chunks_mut(w * TILE_H)
         .zip(flag.par_chunks_mut(w * TILE_H))
+        .zip(reach.par_chunks_mut(w * TILE_H))
         .enumerate()
-        .for_each(|(band, (aband, fband))| {
+        .for_each(|(band, ((aband, fband), rband))| {
             let mut tile = Tile::new(2 * fams.len());
             for x0 in (0..w).step_by(TILE_W) {
                 let x1 = (x0 + TILE_W).min(w);
-                tile.run(&ctx, band * TILE_H, x0..x1, aband, fband);
+                tile.run(&ctx, band * TILE_H, x0..x1, aband, fband, rband);
             }
         });
-    AoMap {
+    let map = AoMap {
         ao,
         no_sample: flag,
         levels: None,
-    }
+    };
+    (map, reach)
 }
 
 /// What every pixel evaluation reads.
@@ -140,6 +182,7 @@ struct Ctx<'a> {
     proj: &'a Projection,
     pts: &'a [Vec3A],
     fams: &'a [Family],
+    only: Option<&'a [bool]>,
 }
 
 /// One half-plane's contribution: its direction `ψ` around `V`, `S` and `T`.
@@ -152,7 +195,7 @@ struct Node {
 
 /// What a pixel's half-planes share: its point, normal and frame around `V`.
 #[derive(Debug, Clone, Copy)]
-struct Frame {
+pub(super) struct Frame {
     c: usize,
     centre: (f32, f32),
     pa: Vec3A,
@@ -195,6 +238,7 @@ impl Tile {
         xs: std::ops::Range<usize>,
         aband: &mut [f32],
         fband: &mut [bool],
+        rband: &mut [f32],
     ) {
         let w = ctx.g.width;
         let rows = aband.len() / w;
@@ -202,7 +246,7 @@ impl Tile {
         for dy in 0..rows {
             for x in xs.clone() {
                 let c = (y0 + dy) * w + x;
-                if ctx.g.is_valid(c) {
+                if ctx.g.is_valid(c) && ctx.only.is_none_or(|m| m[c]) {
                     let f = ctx.frame(x, y0 + dy, c);
                     if f.is_none() {
                         fband[dy * w + x] = true;
@@ -220,9 +264,11 @@ impl Tile {
             for (j, f) in self.frames.iter().enumerate() {
                 let Some(f) = f else { continue };
                 let at = j * self.per + self.count[j];
-                let (added, seen) = ctx.half_planes(f, fam, &mut self.nodes[at..at + 2]);
+                let (added, seen, reach) = ctx.half_planes(f, fam, &mut self.nodes[at..at + 2]);
                 self.count[j] += added;
                 self.any[j] |= seen;
+                let r = &mut rband[f.c - y0 * w];
+                *r = r.min(reach);
             }
         }
         for (j, f) in self.frames.iter().enumerate() {
@@ -244,49 +290,30 @@ impl Tile {
 }
 
 impl Ctx<'_> {
-    /// The frame of valid pixel `c = (x, y)`; `None` when it must be flagged.
     fn frame(&self, x: usize, y: usize, c: usize) -> Option<Frame> {
-        let p = self.g.position[c];
-        let len = self.g.normal[c].length();
-        if !(len > 1e-6 && len.is_finite() && p.is_finite()) {
-            return None;
-        }
-        let nrm = Vec3A::from(self.g.normal[c] / len);
-        let view = Vec3A::from(self.proj.toward_sensor(p));
-        if !(view.length_squared() > 0.5) {
-            return None;
-        }
-        let (e1, e2) = view.any_orthonormal_pair();
-        Some(Frame {
-            c,
-            centre: (x as f32 + 0.5, y as f32 + 0.5),
-            pa: Vec3A::from(p),
-            nrm,
-            view,
-            e1,
-            e2,
-            a: nrm.dot(view),
-        })
+        frame(self.g, self.proj, x, y, c)
     }
 
     /// The nodes of the two half-planes of `fam`'s line through the pixel, written to `out`:
-    /// how many, and whether any valid sample was read.
-    fn half_planes(&self, f: &Frame, fam: &Family, out: &mut [Node]) -> (usize, bool) {
-        let Some((line, i)) = fam.locate(f.centre, -f.view) else {
-            return (0, false);
+    /// how many, whether any valid sample was read, and their reach.
+    fn half_planes(&self, f: &Frame, fam: &Family, out: &mut [Node]) -> (usize, bool, f32) {
+        let none = (0, false, f32::INFINITY);
+        let Some((line, i)) = fam.lines.locate(f.centre, -f.view) else {
+            return none;
         };
-        let m = fam.normal(line);
+        let m = fam.lines.normal(line);
         let Some(back) = (m.cross(f.view)).try_normalize() else {
-            return (0, false);
+            return none;
         };
-        let (mut count, mut any) = (0, false);
+        let (mut count, mut any, mut reach) = none;
         for (u, dir) in [(back, -1i64), (-back, 1i64)] {
             let b = f.nrm.dot(u);
             let Some(half) = Half::new(f.a, b, u, f.view, f.nrm) else {
                 continue;
             };
-            let (blocked, seen) = fam.horizon(line, i, dir, f.c, f.pa, &half, self.pts);
+            let (blocked, seen, r) = fam.horizon(line, i, dir, f.c, f.pa, &half, self.pts);
             any |= seen;
+            reach = reach.min(r);
             let t = half.open();
             out[count] = Node {
                 psi: u.dot(f.e2).atan2(u.dot(f.e1)),
@@ -295,8 +322,40 @@ impl Ctx<'_> {
             };
             count += 1;
         }
-        (count, any)
+        (count, any, reach)
     }
+}
+
+/// The frame of valid pixel `c = (x, y)`; `None` when it must be flagged.
+fn frame(g: &GBuffer, proj: &Projection, x: usize, y: usize, c: usize) -> Option<Frame> {
+    let p = g.position[c];
+    let len = g.normal[c].length();
+    if !(len > 1e-6 && len.is_finite() && p.is_finite()) {
+        return None;
+    }
+    let nrm = Vec3A::from(g.normal[c] / len);
+    let view = Vec3A::from(proj.toward_sensor(p));
+    if !(view.length_squared() > 0.5) {
+        return None;
+    }
+    let (e1, e2) = view.any_orthonormal_pair();
+    Some(Frame {
+        c,
+        centre: (x as f32 + 0.5, y as f32 + 0.5),
+        pa: Vec3A::from(p),
+        nrm,
+        view,
+        e1,
+        e2,
+        a: nrm.dot(view),
+    })
+}
+
+/// `G(γ) = −(a/4) cos 2γ + (b/2) γ − (b/4) sin 2γ`, the antiderivative of
+/// `f(γ) = (a cos γ + b sin γ) sin γ`, from `γ`, `cos γ` and `sin γ`.
+#[inline]
+fn g_of(a: f32, b: f32, gamma: f32, c: f32, s: f32) -> f32 {
+    -0.25 * a * (c * c - s * s) + 0.5 * b * (gamma - s * c)
 }
 
 /// `Σ w S / Σ w T` with each node weighted by half the angle between its neighbours in `ψ`
@@ -336,6 +395,9 @@ pub(crate) struct Half {
     pub(crate) hi: f32,
     /// `cos hi`.
     pub(crate) cos_hi: f32,
+    /// `G(lo)` and `G(hi)`.
+    g_lo: f32,
+    g_hi: f32,
     pub(crate) fx: Vec3A,
     pub(crate) fy: Vec3A,
     /// A bound on how far `(v·fx, v·fy)` moves per unit of `v` (`√(|fx|² + |fy|²)`).
@@ -349,15 +411,17 @@ impl Half {
         if !(r > 1e-6 && r.is_finite()) {
             return None;
         }
-        let gn = b.atan2(a);
+        let gn = fast_atan2(b, a);
+        let (cn, sn) = (a / r, b / r);
+        // Each end as (γ, cos γ, sin γ): γ = gn ± π/2 has cos = ∓ sin gn, sin = ± cos gn.
         let (lo, hi) = if a > 0.0 {
-            (0.0, gn + FRAC_PI_2)
+            ((0.0, 1.0, 0.0), (gn + FRAC_PI_2, -sn, cn))
         } else if gn >= FRAC_PI_2 {
-            (gn - FRAC_PI_2, PI)
+            ((gn - FRAC_PI_2, sn, -cn), (PI, -1.0, 0.0))
         } else {
-            (gn + 1.5 * PI, PI)
+            ((gn + 1.5 * PI, sn, -cn), (PI, -1.0, 0.0))
         };
-        if !(hi > lo) {
+        if !(hi.0 > lo.0) {
             return None;
         }
         // A sample's position `τ` along the tangent line `(a u − b V)/R` and its height
@@ -366,12 +430,15 @@ impl Half {
         let tl = (u * a - view * b) * inv;
         let fx = tl * (a * inv) + nrm * (b * inv * inv);
         let fy = tl * (-b * inv) + nrm * (a * inv * inv);
+        let g = |(gamma, c, s): (f32, f32, f32)| g_of(a, b, gamma, c, s);
         Some(Half {
             a,
             b,
-            lo,
-            hi,
-            cos_hi: hi.cos(),
+            lo: lo.0,
+            hi: hi.0,
+            cos_hi: hi.1,
+            g_lo: g(lo),
+            g_hi: g(hi),
             fx,
             fy,
             stretch: (fx.length_squared() + fy.length_squared()).sqrt(),
@@ -397,38 +464,47 @@ impl Half {
         cos_g0 >= cos_d || cos_g0 * cos_d + sin_g0 * sin_d > cur - 1e-5
     }
 
-    /// `G(γ) = −(a/4) cos 2γ + (b/2) γ − (b/4) sin 2γ`, the antiderivative of `f`.
-    fn g(&self, gamma: f32) -> f32 {
-        let (s, c) = gamma.sin_cos();
-        -0.25 * self.a * (c * c - s * s) + 0.5 * self.b * (gamma - s * c)
-    }
-
     /// `T = G(hi) − G(lo)`.
     fn open(&self) -> f32 {
-        (self.g(self.hi) - self.g(self.lo)).max(0.0)
+        (self.g_hi - self.g_lo).max(0.0)
     }
 
     /// `∫ f` over the arc from `l` (given as `cos l`) to `upper`, within `[lo, hi]`. An arc
     /// that ends at `hi` and starts within 10⁻⁵ rad of it is empty (rounding noise of a plane).
     pub(crate) fn blocked(&self, cos_l: f32, upper: f32) -> f32 {
-        let l = cos_l.clamp(-1.0, 1.0).acos();
+        let cl = cos_l.clamp(-1.0, 1.0);
+        let sl = (1.0 - cl * cl).max(0.0).sqrt();
+        let l = fast_atan2(sl, cl);
         if upper >= self.hi && l > self.hi - 1e-5 {
             return 0.0;
         }
-        let (a, b) = (l.max(self.lo), upper.min(self.hi));
-        if b > a {
-            (self.g(b) - self.g(a)).max(0.0)
+        let (from, g_from) = if l > self.lo {
+            (l, g_of(self.a, self.b, l, cl, sl))
+        } else {
+            (self.lo, self.g_lo)
+        };
+        let (to, g_to) = if upper >= self.hi {
+            (self.hi, self.g_hi)
+        } else {
+            let (s, c) = upper.sin_cos();
+            (upper, g_of(self.a, self.b, upper, c, s))
+        };
+        if to > from {
+            (g_to - g_from).max(0.0)
         } else {
             0.0
         }
     }
 
     /// `cos γ` of a sample at offset `v` from the receiver, `None` when it is not in the
-    /// half-plane (behind the line of `V`, or at the receiver).
+    /// half-plane (behind the line of `V`, at the receiver, or beside the half-plane: its
+    /// offset within it under [`BESIDE`] of its length, where rounding alone would set its
+    /// direction).
     #[inline]
     pub(crate) fn cos_gamma(&self, v: Vec3A) -> Option<f32> {
         let (x, y) = (v.dot(self.fx), v.dot(self.fy));
         let l2 = x * x + y * y;
-        (x > 0.0 && l2 > 0.0).then(|| y / l2.sqrt())
+        let beside = !(l2 > BESIDE * BESIDE * v.length_squared());
+        (x > 0.0 && !beside).then(|| y / l2.sqrt())
     }
 }

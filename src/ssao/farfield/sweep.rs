@@ -40,14 +40,22 @@ enum Shape {
     },
 }
 
-/// One family of lines: every valid pixel lies on (next to) one of them.
-pub(super) struct Family {
+/// The lines of one family: where their samples fall and which line and sample a pixel snaps
+/// to. Every valid pixel lies on (next to) one of them.
+pub(super) struct Lines {
     shape: Shape,
-    lines: usize,
-    len: usize,
+    /// Number of lines.
+    pub(super) count: usize,
+    /// Samples per line.
+    pub(super) len: usize,
     /// Per line: the normal `m` of its plane, oriented so that the samples advance by rotating
     /// about it (screen lines of an orthographic map: advance along `V × m`).
     normals: Vec<Vec3A>,
+}
+
+/// One family of lines with its block hulls, for the walk of [`Family::horizon`].
+pub(super) struct Family {
+    pub(super) lines: Lines,
     /// `lines × len` sample pixels.
     samples: Vec<u32>,
     /// Level `k` cuts every line into blocks of `BLOCK << k` samples: per level, line and
@@ -69,72 +77,33 @@ struct Level {
     spheres: Vec<Vec4>,
 }
 
-impl Family {
-    /// Family `f` of `k` for the map `g` seen by `proj`.
-    pub(super) fn new(g: &GBuffer, proj: &Projection, f: usize, k: usize) -> Family {
-        let (shape, lines, len) = layout(proj, f, k);
-        let mut depth = 1;
-        while (BLOCK as usize) << (depth - 1) < len {
-            depth += 1;
-        }
-        let rows: Vec<(Vec<u32>, Vec3A, Vec<LevelHulls>)> = (0..lines)
-            .into_par_iter()
-            .map(|l| {
-                let row: Vec<u32> = (0..len)
-                    .map(|i| match sample_pixel(&shape, proj, l, i) {
-                        Some(c) if g.is_valid(c) => c as u32,
-                        _ => EMPTY_SAMPLE,
-                    })
-                    .collect();
-                let m = line_normal(&shape, proj, l, len);
-                let mut below: LevelHulls = row
-                    .chunks(BLOCK as usize)
-                    .map(|b| hull(b, m, &g.position))
-                    .collect();
-                let mut hulls = Vec::with_capacity(depth);
-                // The hull of two blocks' union is the hull of their hulls' vertices.
-                for _ in 1..depth {
-                    let up = below
-                        .chunks(2)
-                        .map(|pair| hull(&pair.concat(), m, &g.position))
-                        .collect();
-                    hulls.push(std::mem::replace(&mut below, up));
-                }
-                hulls.push(below);
-                (row, m, hulls)
-            })
+impl Lines {
+    /// The lines of family `f` of `k` on a map seen by `proj`.
+    pub(super) fn new(proj: &Projection, f: usize, k: usize) -> Lines {
+        let (shape, count, len) = layout(proj, f, k);
+        let normals = (0..count)
+            .map(|l| line_normal(&shape, proj, l, len))
             .collect();
-        let mut fam = Family {
+        Lines {
             shape,
-            lines,
+            count,
             len,
-            normals: Vec::with_capacity(lines),
-            samples: Vec::with_capacity(lines * len),
-            levels: (0..depth)
-                .map(|k| {
-                    let nblocks = len.div_ceil((BLOCK as usize) << k);
-                    Level {
-                        nblocks,
-                        blocks: Vec::with_capacity(lines * nblocks),
-                        spheres: Vec::with_capacity(lines * nblocks),
-                    }
-                })
-                .collect(),
-            verts: Vec::new(),
-        };
-        for (row, m, hulls) in rows {
-            fam.samples.extend_from_slice(&row);
-            fam.normals.push(m);
-            for (level, hs) in fam.levels.iter_mut().zip(hulls) {
-                for h in hs {
-                    let start = fam.verts.len() as u32;
-                    fam.verts.extend_from_slice(&h);
-                    level.blocks.push((start, fam.verts.len() as u32));
-                    level.spheres.push(sphere(&h, &g.position));
-                }
-            }
+            normals,
         }
-        fam
+    }
+
+    /// The screen direction along which straight lines advance (`None` on circles).
+    pub(super) fn direction(&self) -> Option<Vec2> {
+        match self.shape {
+            Shape::Screen { t, .. } => Some(t),
+            Shape::Circle { .. } => None,
+        }
+    }
+
+    /// The map pixel of sample `i` of line `l`, if it falls on the map.
+    #[inline]
+    pub(super) fn pixel(&self, proj: &Projection, l: usize, i: usize) -> Option<usize> {
+        sample_pixel(&self.shape, proj, l, i)
     }
 
     /// The line and sample a pixel snaps to, from its centre `(x, y)` and the unit direction
@@ -145,7 +114,7 @@ impl Family {
                 let c = Vec2::new(centre.0, centre.1);
                 let l = (c.dot(nrm) - n0).round();
                 let i = (c.dot(t) - t0).round();
-                let ok = l >= 0.0 && (l as usize) < self.lines && i >= 0.0;
+                let ok = l >= 0.0 && (l as usize) < self.count && i >= 0.0;
                 (ok && (i as usize) < self.len).then_some((l as usize, i as usize))
             }
             Shape::Circle {
@@ -168,7 +137,7 @@ impl Family {
                     phi = TAU - phi;
                 }
                 let mut l = (beta / dbeta).round() as usize;
-                if l >= self.lines {
+                if l >= self.count {
                     // β = π is the circle β = 0 run backwards.
                     l = 0;
                     phi = TAU - phi;
@@ -183,10 +152,77 @@ impl Family {
     pub(super) fn normal(&self, l: usize) -> Vec3A {
         self.normals[l]
     }
+}
+
+impl Family {
+    /// Family `f` of `k` for the map `g` seen by `proj`.
+    pub(super) fn new(g: &GBuffer, proj: &Projection, f: usize, k: usize) -> Family {
+        let lines = Lines::new(proj, f, k);
+        let len = lines.len;
+        let mut depth = 1;
+        while (BLOCK as usize) << (depth - 1) < len {
+            depth += 1;
+        }
+        let rows: Vec<(Vec<u32>, Vec<LevelHulls>)> = (0..lines.count)
+            .into_par_iter()
+            .map(|l| {
+                let row: Vec<u32> = (0..len)
+                    .map(|i| match lines.pixel(proj, l, i) {
+                        Some(c) if g.is_valid(c) => c as u32,
+                        _ => EMPTY_SAMPLE,
+                    })
+                    .collect();
+                let m = lines.normal(l);
+                let mut below: LevelHulls = row
+                    .chunks(BLOCK as usize)
+                    .map(|b| hull(b, m, &g.position))
+                    .collect();
+                let mut hulls = Vec::with_capacity(depth);
+                // The hull of two blocks' union is the hull of their hulls' vertices.
+                for _ in 1..depth {
+                    let up = below
+                        .chunks(2)
+                        .map(|pair| hull(&pair.concat(), m, &g.position))
+                        .collect();
+                    hulls.push(std::mem::replace(&mut below, up));
+                }
+                hulls.push(below);
+                (row, hulls)
+            })
+            .collect();
+        let mut fam = Family {
+            samples: Vec::with_capacity(lines.count * len),
+            levels: (0..depth)
+                .map(|k| {
+                    let nblocks = len.div_ceil((BLOCK as usize) << k);
+                    Level {
+                        nblocks,
+                        blocks: Vec::with_capacity(lines.count * nblocks),
+                        spheres: Vec::with_capacity(lines.count * nblocks),
+                    }
+                })
+                .collect(),
+            verts: Vec::new(),
+            lines,
+        };
+        for (row, hulls) in rows {
+            fam.samples.extend_from_slice(&row);
+            for (level, hs) in fam.levels.iter_mut().zip(hulls) {
+                for h in hs {
+                    let start = fam.verts.len() as u32;
+                    fam.verts.extend_from_slice(&h);
+                    level.blocks.push((start, fam.verts.len() as u32));
+                    level.spheres.push(sphere(&h, &g.position));
+                }
+            }
+        }
+        fam
+    }
 
     /// The blocked part `∫ f` of the half-plane `half` of pixel `c` at `pa`, snapped to sample
     /// `i` of line `l`, by the samples before it (`dir = −1`) or after it (`dir = 1`), each
-    /// solid behind as the sensor sees it; and whether any valid sample was read.
+    /// solid behind as the sensor sees it; whether any valid sample was read; and the distance
+    /// to the nearest sample that bounds a blocked arc (see [`super::ssao_masked`]).
     ///
     /// A sample at `γ` from `V` and `φ` round from the receiver (seen from the sensor) blocks
     /// the arc `[γ, π − φ)`: the directions that pass below it and cross the ray from the
@@ -204,26 +240,29 @@ impl Family {
         pa: Vec3A,
         half: &Half,
         pts: &[Vec3A],
-    ) -> (f32, bool) {
-        let n = self.len as i64;
+    ) -> (f32, bool, f32) {
+        let n = self.lines.len as i64;
         let i = i as i64;
-        let circle = matches!(self.shape, Shape::Circle { .. });
+        let circle = matches!(self.lines.shape, Shape::Circle { .. });
         // On a circle, samples at π or more round are on the other side of V.
         let reach = match (circle, dir < 0) {
             (true, _) => (n - 1) / 2,
             (false, true) => i,
             (false, false) => n - 1 - i,
         };
-        let row = &self.samples[l * self.len..(l + 1) * self.len];
+        let row = &self.samples[l * self.lines.len..(l + 1) * self.lines.len];
         // Seen from the sensor at angle φ round a circle from the receiver, a sample hides
         // only directions γ < π − φ (rays at larger γ never come that far round): it raises
         // the horizon h only while φ ≤ π − h, i.e. cos φ ≥ −cos h.
-        let step = match self.shape {
+        let step = match self.lines.shape {
             Shape::Circle { step, .. } => step,
             Shape::Screen { .. } => 0.0,
         };
         let reaches = |d: i64, cos_h: f32| !circle || (d as f32 * step).cos() >= -cos_h;
         let (mut cur, mut upper, mut closed, mut seen) = (half.cos_hi, half.hi, 0.0f32, false);
+        // The sample bounding the current arc, and the nearest distance of closed arcs'.
+        let (mut by, mut near) = (EMPTY_SAMPLE, f32::INFINITY);
+        let dist = |s: u32| (pts[s as usize] - pa).length();
         let gamma = |s: u32| -> Option<f32> {
             if s == EMPTY_SAMPLE || s as usize == c {
                 return None;
@@ -254,30 +293,44 @@ impl Family {
                     for &s in &self.verts[v0..v1] {
                         if let Some(cg) = gamma(s) {
                             seen = true;
-                            cur = cur.max(cg);
+                            if cg > cur {
+                                (cur, by) = (cg, s);
+                            }
                         }
                     }
                     d += span;
                     continue;
                 }
             }
-            if let Some(cg) = gamma(row[j as usize]) {
+            let s = row[j as usize];
+            if let Some(cg) = gamma(s) {
                 seen = true;
                 if reaches(d, cur) {
-                    cur = cur.max(cg);
+                    if cg > cur {
+                        (cur, by) = (cg, s);
+                    }
                 } else {
                     // Out of reach of the blocked arc: the sample blocks its own arc
                     // [γ, π − φ), below every arc so far (later samples are farther round).
                     let e = PI - d as f32 * step;
                     if cg.clamp(-1.0, 1.0).acos() < e {
-                        closed += half.blocked(cur, upper);
-                        (cur, upper) = (cg, e);
+                        let b = half.blocked(cur, upper);
+                        if b > 0.0 && by != EMPTY_SAMPLE {
+                            near = near.min(dist(by));
+                        }
+                        closed += b;
+                        (cur, upper, by) = (cg, e, s);
                     }
                 }
             }
             d += 1;
         }
-        (half.blocked(cur, upper) + closed, seen)
+        let last = half.blocked(cur, upper);
+        let raised = upper < half.hi || cur > half.cos_hi + super::RAISE;
+        if last > 0.0 && raised && by != EMPTY_SAMPLE {
+            near = near.min(dist(by));
+        }
+        (last + closed, seen, near)
     }
 }
 
@@ -298,7 +351,7 @@ impl Family {
         reach: i64,
         within: impl Fn(i64) -> bool,
     ) -> Option<(usize, usize, i64, Vec4)> {
-        let n = self.len as i64;
+        let n = self.lines.len as i64;
         // Blocks are powers of two long and aligned: a block of any level begins (walking up)
         // or ends (walking down) at `j` only where one of the smallest does, so most samples
         // are settled by one mask instead of a division per level.

@@ -71,7 +71,7 @@ fn span(refs: &[(usize, f32)]) -> f32 {
 
 /// A 20 × 20 m court with 8 m walls, no roof, and a 2 × 2 m pillar off its centre, seen from
 /// 1.5 m above its floor.
-fn court(o: Vec3, d: Vec3) -> Option<(f32, Vec3)> {
+pub(crate) fn court(o: Vec3, d: Vec3) -> Option<(f32, Vec3)> {
     let (lo, hi) = (Vec3::new(-10.0, -10.0, -1.5), Vec3::new(10.0, 10.0, 6.5));
     let walls = box_hit(o, d, lo, hi).filter(|b| b.1 != Vec3::NEG_Z);
     let pillar = solid_box_hit(o, d, Vec3::new(3.0, -1.0, -1.5), Vec3::new(5.0, 1.0, 3.0));
@@ -217,4 +217,24 @@ fn deterministic_and_finite() {
         .ao
         .iter()
         .all(|v| v.is_finite() && (0.0..=1.0).contains(v)));
+}
+
+#[test]
+fn one_pass_sweep_of_straight_lines_matches_the_walk() {
+    let proj = camera(192, 144, -10f32.to_radians());
+    let g = cast(&proj, |o, d| court(o, Mat3::from_rotation_z(0.6) * d));
+    let g = rotated_points(g, Mat3::from_rotation_z(0.6));
+    let one = ssao(&g, &proj, &params(8, 8, INF));
+    let (each, _) = walk(&g, &proj, 32, None);
+    let (mut sum, mut worst, mut n) = (0.0f32, 0.0f32, 0usize);
+    for c in (0..g.width * g.height).filter(|&c| g.is_valid(c)) {
+        assert_eq!(one.no_sample[c], each.no_sample[c]);
+        let d = (one.ao[c] - each.ao[c]).abs();
+        sum += d;
+        worst = worst.max(d);
+        n += 1;
+    }
+    let mean = sum / n as f32;
+    eprintln!("one pass against the walk: {n} pixels, mean |Δa| {mean:.5}, largest {worst:.4}");
+    assert!(mean < 0.0005 && worst < 0.01, "{mean} {worst}");
 }

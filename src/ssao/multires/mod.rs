@@ -30,10 +30,19 @@
 //! The corners are evaluated by the full march with their own per-pixel random numbers, so the
 //! map is deterministic for a seed; a block one of whose corners found no sample is evaluated
 //! at full rate. An open plane reads exactly 1: every corner does, and the interpolation is
-//! written as two linear blends, exact on equal values. Without a finite `t_max` there is no
-//! scale to compare a block with, and every pixel runs at full rate.
+//! written as two linear blends, exact on equal values.
+//!
+//! # Plain ambient occlusion (`t_max = ∞`)
+//!
+//! Without a finite `t_max` the march has no scale to compare a block with, and runs every
+//! pixel. The far-field sweeps instead report each pixel's *reach*, the distance to the nearest
+//! sample that bounds a blocked arc of one of its half-planes: plain obscurance changes on that
+//! scale as the pixel moves. A block is planned as above with no bound on its extent (steps
+//! under [`FAR_STEP`] pixel radii are not discontinuities), its corners are evaluated, and it
+//! runs again at full rate when its extent exceeds [`MAX_EXTENT`] × the smallest reach of its
+//! corners, the same ratio as against `t_max`. An open plane has infinite reach and reads 1.
 
-use super::{horizon, AoMap, SsaoParams};
+use super::{farfield, horizon, AoMap, SsaoParams};
 use crate::gbuffer::GBuffer;
 use crate::projection::Projection;
 use glam::Vec3;
@@ -42,6 +51,10 @@ use serde::{Deserialize, Serialize};
 
 /// Largest block extent, as a fraction of `t_max`.
 pub const MAX_EXTENT: f32 = 0.25;
+/// At `t_max = ∞`, offsets from the tangent plane below this many pixel radii are not
+/// discontinuities (range noise of the order of the spacing); a real step is caught by the
+/// reach of the block's corners instead.
+pub const FAR_STEP: f32 = 2.0;
 /// Largest sine of the angle between a pixel's tangent plane and the segment to a neighbour.
 pub const MAX_DISCONTINUITY: f32 = 0.15;
 /// Offsets from the tangent plane below this fraction of `t_max` are not discontinuities: a
@@ -211,16 +224,32 @@ fn discontinuity_at(g: &GBuffer, x: usize, y: usize, slack: f32) -> f32 {
 /// The level of every pixel (index into [`SIZES`]; 0 on empty pixels), for falloff
 /// distance `tmax`. A coarse pixel belongs to the block of its level that holds it.
 pub fn plan(g: &GBuffer, tmax: f32) -> Vec<u8> {
+    if !(tmax > 0.0 && tmax.is_finite()) {
+        return vec![0u8; g.width * g.height];
+    }
+    plan_by(g, |_| MIN_STEP * tmax, MAX_EXTENT * tmax)
+}
+
+/// The levels of the far field (`t_max = ∞`) before its corners are evaluated: no block
+/// extent is ruled out (the corners' reach decides it after), and steps below [`FAR_STEP`]
+/// pixel radii are not discontinuities.
+fn plan_far(g: &GBuffer) -> Vec<u8> {
+    plan_by(g, |c| FAR_STEP * g.radius[c], f32::INFINITY)
+}
+
+/// The levels of the pixels: neighbours within `slack(pixel)` metres of a pixel's tangent
+/// plane are continuous with it, and blocks are at most `max_extent` metres across.
+fn plan_by(g: &GBuffer, slack: impl Fn(usize) -> f32 + Sync, max_extent: f32) -> Vec<u8> {
     let (w, h) = (g.width, g.height);
     let mut level = vec![0u8; w * h];
-    if !(tmax > 0.0 && tmax.is_finite()) || w == 0 {
+    if w == 0 {
         return level;
     }
-    let slack = MIN_STEP * tmax;
     let mut cont = vec![false; w * h];
     cont.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, k) in row.iter_mut().enumerate() {
-            *k = discontinuity_at(g, x, y, slack) <= MAX_DISCONTINUITY;
+            let c = y * w + x;
+            *k = g.is_valid(c) && discontinuity_at(g, x, y, slack(c)) <= MAX_DISCONTINUITY;
         }
     });
     let top = SIZES[2];
@@ -230,13 +259,13 @@ pub fn plan(g: &GBuffer, tmax: f32) -> Vec<u8> {
         .for_each(|(by, band)| {
             let y0 = by * top;
             for x0 in (0..w).step_by(top) {
-                if coarse(g, &cont, x0, y0, top, tmax) {
+                if coarse(g, &cont, x0, y0, top, max_extent) {
                     fill(band, w, x0, 0, top, 2);
                     continue;
                 }
                 let half = SIZES[1];
                 for (sx, sy) in [(0, 0), (half, 0), (0, half), (half, half)] {
-                    if coarse(g, &cont, x0 + sx, y0 + sy, half, tmax) {
+                    if coarse(g, &cont, x0 + sx, y0 + sy, half, max_extent) {
                         fill(band, w, x0 + sx, sy, half, 1);
                     }
                 }
@@ -252,9 +281,25 @@ fn fill(band: &mut [u8], w: usize, x0: usize, r0: usize, b: usize, l: u8) {
     }
 }
 
+/// The pixels of the corners of the `b × b` block at `(x0, y0)`.
+fn corners(w: usize, x0: usize, y0: usize, b: usize) -> [usize; 4] {
+    [
+        y0 * w + x0,
+        y0 * w + x0 + b,
+        (y0 + b) * w + x0,
+        (y0 + b) * w + x0 + b,
+    ]
+}
+
+/// A block's extent: the longer diagonal between its corners `c`, metres.
+fn extent(g: &GBuffer, c: [usize; 4]) -> f32 {
+    let p = |i: usize| g.position[c[i]];
+    (p(3) - p(0)).length().max((p(2) - p(1)).length())
+}
+
 /// Whether the `b × b` block at `(x0, y0)` may be evaluated at its corners only (see the
-/// module notes).
-fn coarse(g: &GBuffer, cont: &[bool], x0: usize, y0: usize, b: usize, tmax: f32) -> bool {
+/// module notes), at most `max_extent` metres across.
+fn coarse(g: &GBuffer, cont: &[bool], x0: usize, y0: usize, b: usize, max_extent: f32) -> bool {
     let w = g.width;
     if x0 + b >= w || y0 + b >= g.height {
         return false;
@@ -264,15 +309,9 @@ fn coarse(g: &GBuffer, cont: &[bool], x0: usize, y0: usize, b: usize, tmax: f32)
             return false;
         }
     }
-    let c = [
-        y0 * w + x0,
-        y0 * w + x0 + b,
-        (y0 + b) * w + x0,
-        (y0 + b) * w + x0 + b,
-    ];
-    let p = |i: usize| g.position[c[i]];
-    let extent = (p(3) - p(0)).length().max((p(2) - p(1)).length());
-    if !(extent <= MAX_EXTENT * tmax) {
+    let c = corners(w, x0, y0, b);
+    let extent = extent(g, c);
+    if !(extent <= max_extent) {
         return false;
     }
     for (i, j) in [(0, 1), (2, 3), (0, 2), (1, 3), (0, 3), (1, 2)] {
@@ -290,14 +329,43 @@ fn coarse(g: &GBuffer, cont: &[bool], x0: usize, y0: usize, b: usize, tmax: f32)
 /// The unblurred horizon march evaluated at the levels [`plan`] chooses, and the pixels
 /// evaluated at each level.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
-    let (w, h) = (g.width, g.height);
-    let valid = (0..w * h).filter(|&c| g.is_valid(c)).count() as u64;
     if super::unmarchable(g, proj).is_some() {
-        let mut map = horizon::ssao(g, proj, prm);
-        map.levels = Some(Levels::full(valid));
-        return map;
+        return full(g, horizon::ssao(g, proj, prm));
     }
-    let mut level = plan(g, prm.tmax);
+    refine(g, plan(g, prm.tmax), |only| {
+        (horizon::ssao_masked(g, proj, prm, Some(only)), None)
+    })
+}
+
+/// The unblurred far-field sweeps (`t_max = ∞`) evaluated at the levels the map and the
+/// corners' reach allow, and the pixels evaluated at each level.
+pub fn far_field(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
+    if super::unmarchable(g, proj).is_some() {
+        return full(g, farfield::ssao(g, proj, prm));
+    }
+    refine(g, plan_far(g), |only| {
+        let (map, reach) = farfield::ssao_masked(g, proj, prm, Some(only));
+        (map, Some(reach))
+    })
+}
+
+/// `map` with every valid pixel of `g` counted at full rate.
+fn full(g: &GBuffer, mut map: AoMap) -> AoMap {
+    let valid = (0..g.width * g.height).filter(|&c| g.is_valid(c)).count() as u64;
+    map.levels = Some(Levels::full(valid));
+    map
+}
+
+/// Evaluates the pixels of `level` with `eval` (the pixels to evaluate → their map, and
+/// optionally each one's reach), runs again at full rate every block a corner of which found
+/// no sample or reaches an occluder nearer than the block's extent over [`MAX_EXTENT`], and
+/// fills in the rest.
+fn refine(
+    g: &GBuffer,
+    mut level: Vec<u8>,
+    eval: impl Fn(&[bool]) -> (AoMap, Option<Vec<f32>>),
+) -> AoMap {
+    let (w, h) = (g.width, g.height);
     // Pixels the march evaluates: every full-rate pixel and every coarse block's corners.
     let mut need: Vec<bool> = level
         .iter()
@@ -310,16 +378,19 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
             need[(y0 + dy) * w + x0 + dx] = true;
         }
     }
-    let mut map = horizon::ssao_masked(g, proj, prm, Some(&need));
-    // A block whose corners did not all find a sample runs at full rate.
+    let (mut map, reach) = eval(&need);
+    // A block whose corners did not all find a sample runs at full rate, and so does one
+    // whose obscurance changes within it: its corners see occluders nearer than its extent
+    // over MAX_EXTENT.
     let mut redo = vec![false; w * h];
     let mut any = false;
     for &(x0, y0, b) in &blocks {
-        let corners = [(0, 0), (b, 0), (0, b), (b, b)];
-        if corners
-            .iter()
-            .any(|&(dx, dy)| map.no_sample[(y0 + dy) * w + x0 + dx])
-        {
+        let c = corners(w, x0, y0, b);
+        let near = reach.as_ref().is_some_and(|r| {
+            let nearest = c.iter().map(|&i| r[i]).fold(f32::INFINITY, f32::min);
+            !(extent(g, c) <= MAX_EXTENT * nearest)
+        });
+        if near || c.iter().any(|&i| map.no_sample[i]) {
             any = true;
             for y in y0..y0 + b {
                 for x in x0..x0 + b {
@@ -330,7 +401,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
         }
     }
     if any {
-        let again = horizon::ssao_masked(g, proj, prm, Some(&redo));
+        let (again, _) = eval(&redo);
         for c in (0..w * h).filter(|&c| redo[c]) {
             map.ao[c] = again.ao[c];
             map.no_sample[c] = again.no_sample[c];

@@ -175,3 +175,47 @@ fn room_on_an_equirect_map_stays_close_to_uniform() {
     assert!(mean < 0.02, "{mean}");
     assert_eq!(ada.no_sample, uni.no_sample);
 }
+
+#[test]
+fn far_field_open_plane_reads_one_and_runs_coarse() {
+    let proj = camera(160, 120, 0.5);
+    let g = cast(&proj, |o, d| {
+        plane(o, d, Vec3::Z, -1.5).map(|t| (t, Vec3::Z))
+    });
+    let m = far_field(&g, &proj, &adaptive(f32::INFINITY));
+    for (i, &a) in m.ao.iter().enumerate() {
+        assert!((a - 1.0).abs() < 1e-6, "pixel {i}: {a}");
+    }
+    let lv = m.levels.unwrap();
+    assert_eq!(lv.pixels.iter().sum::<u64>() as usize, g.filled());
+    assert!(lv.shares()[2] > 0.5, "{}", lv.to_text());
+}
+
+#[test]
+fn far_field_stays_close_to_full_rate_under_open_sky() {
+    use crate::ssao::farfield::{self, tests::court};
+    let inf = adaptive(f32::INFINITY);
+    let pinhole = camera(200, 150, 0.3);
+    let station = equirect(256, 128);
+    for (name, proj, g) in [
+        ("floor and wall", &pinhole, floor_and_wall(&pinhole)),
+        ("court", &station, cast(&station, court)),
+    ] {
+        let full = farfield::ssao(&g, proj, &inf);
+        let ada = far_field(&g, proj, &inf);
+        let n = g.filled() as f64;
+        let mean = (0..g.width * g.height)
+            .filter(|&c| g.is_valid(c))
+            .map(|c| (ada.ao[c] - full.ao[c]).abs() as f64)
+            .sum::<f64>()
+            / n;
+        let l = ada.levels.unwrap();
+        eprintln!(
+            "{name} at t_max = ∞: mean |adaptive − full| {mean:.5}; {}",
+            l.to_text()
+        );
+        assert!(mean < 0.003, "{name}: {mean}");
+        assert!(l.shares()[0] < 0.6, "{name}: {}", l.to_text());
+        assert_eq!(ada.no_sample, full.no_sample);
+    }
+}
