@@ -247,7 +247,7 @@ impl Tile {
             for x in xs.clone() {
                 let c = (y0 + dy) * w + x;
                 if ctx.g.is_valid(c) && ctx.only.is_none_or(|m| m[c]) {
-                    let f = ctx.frame(x, y0 + dy, c);
+                    let f = frame(ctx.g, ctx.proj, x, y0 + dy, c);
                     if f.is_none() {
                         fband[dy * w + x] = true;
                     }
@@ -290,10 +290,6 @@ impl Tile {
 }
 
 impl Ctx<'_> {
-    fn frame(&self, x: usize, y: usize, c: usize) -> Option<Frame> {
-        frame(self.g, self.proj, x, y, c)
-    }
-
     /// The nodes of the two half-planes of `fam`'s line through the pixel, written to `out`:
     /// how many, whether any valid sample was read, and their reach.
     fn half_planes(&self, f: &Frame, fam: &Family, out: &mut [Node]) -> (usize, bool, f32) {

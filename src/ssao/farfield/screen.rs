@@ -159,10 +159,10 @@ pub(super) fn ssao(
             if !wanted(c) {
                 return;
             }
-            let (x, y) = (c % g.width, c / g.width);
             let s = f32::from_bits(sums.s[c].load(Relaxed));
             let t = f32::from_bits(sums.t[c].load(Relaxed));
-            if frame(g, proj, x, y, c).is_none() || !sums.seen[c].load(Relaxed) {
+            // A pixel without a frame adds nothing, so it is never seen.
+            if !sums.seen[c].load(Relaxed) {
                 *fl = true;
             } else if t > 0.0 {
                 let v = s / t;
@@ -295,7 +295,10 @@ impl Ctx<'_> {
             let cu = c as usize;
             let fr = frame(self.g, self.proj, cu % w, cu / w, cu);
             let near = i.saturating_sub(NEAR as usize)..i;
-            let hf = fr.as_ref().and_then(|fr| Some((fr, half(fr, m, false)?)));
+            let hf = fr.as_ref().and_then(|fr| {
+                let back = m.cross(fr.view).try_normalize()?;
+                Some((fr, half(fr, back, false)?))
+            });
             let (back, seen, reach) = hf.map_or((None, false, f32::INFINITY), |(fr, hf)| {
                 let (cur, seen, reach) = self.horizon(fr, &hf, &sc.stack, near, &sc.row, along(cu));
                 (Some((hf, hf.blocked(cur, hf.hi))), seen, reach)
@@ -314,7 +317,11 @@ impl Ctx<'_> {
                 }
             }
             let (fr, back, back_seen, mut reach) = sc.back[j];
-            let Some(fr) = fr else { continue };
+            let Some((fr, back_u)) =
+                fr.and_then(|fr| Some((fr, m.cross(fr.view).try_normalize()?)))
+            else {
+                continue;
+            };
             let mut ds = 0.0;
             let mut dt = 0.0;
             let mut seen = back_seen;
@@ -323,7 +330,7 @@ impl Ctx<'_> {
                 ds += (t - blocked).max(0.0);
                 dt += t;
             }
-            if let Some(hf) = half(&fr, m, true) {
+            if let Some(hf) = half(&fr, back_u, true) {
                 let near = i + 1..(i + 1 + NEAR as usize).min(fam.len);
                 let (cur, s, r) =
                     self.horizon(&fr, &hf, &sc.stack, near, &sc.row, -along(c as usize));
@@ -333,7 +340,7 @@ impl Ctx<'_> {
                 dt += t;
                 seen |= s;
             }
-            let wgt = self.weight(f, &fr, m);
+            let wgt = self.weight(f, &fr, back_u);
             sums.add(c as usize, wgt * ds, wgt * dt, seen, reach);
         }
     }
@@ -383,17 +390,14 @@ impl Ctx<'_> {
         (cur, seen, reach)
     }
 
-    /// Half the angle between the pixel's half-plane of family `f` (plane normal `m`) and
-    /// its neighbours' of families `f ± 1` (`π / K` where a neighbour has none).
-    fn weight(&self, f: usize, fr: &Frame, m: Vec3A) -> f32 {
+    /// Half the angle between the pixel's backward half-plane of family `f` (direction `u`)
+    /// and its neighbours' of families `f ± 1` (`π / K` where a neighbour has none).
+    fn weight(&self, f: usize, fr: &Frame, u: Vec3A) -> f32 {
         let k = self.fams.len();
         let fallback = PI / k as f32;
         let back = |fam: &Lines| -> Option<Vec3A> {
             let (l, _) = fam.locate(fr.centre, -fr.view)?;
             fam.normal(l).cross(fr.view).try_normalize()
-        };
-        let Some(u) = m.cross(fr.view).try_normalize() else {
-            return fallback;
         };
         // Beyond the last family the lines come round reversed: family K is family 0 run
         // backwards.
@@ -413,10 +417,9 @@ impl Ctx<'_> {
     }
 }
 
-/// The half-plane of `fr` along its line (plane normal `m`): backwards, or forwards when
-/// `front`.
-fn half(fr: &Frame, m: Vec3A, front: bool) -> Option<Half> {
-    let back = m.cross(fr.view).try_normalize()?;
+/// The half-plane of `fr` along its line (`back` the unit direction backwards along it):
+/// backwards, or forwards when `front`.
+fn half(fr: &Frame, back: Vec3A, front: bool) -> Option<Half> {
     let u = if front { -back } else { back };
     Half::new(fr.a, fr.nrm.dot(u), u, fr.view, fr.nrm)
 }
