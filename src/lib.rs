@@ -48,6 +48,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod accuracy;
+pub mod bigalloc;
 pub mod config;
 pub mod error;
 pub(crate) mod eval;

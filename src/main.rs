@@ -12,6 +12,9 @@ use app::cli::Cli;
 use clap::Parser;
 use std::process::ExitCode;
 
+#[global_allocator]
+static ALLOC: mvao::bigalloc::BigAlloc = mvao::bigalloc::BigAlloc;
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match app::commands::run(cli.command) {

@@ -64,6 +64,11 @@ pub fn keep_freed_memory() {
     crate::pagebuf::keep_freed();
 }
 
+/// Whether [`keep_freed_memory`] has been called.
+pub fn keeps_freed_memory() -> bool {
+    KEEP_FREED.load(std::sync::atomic::Ordering::Relaxed)
+}
+
 /// Set once [`keep_freed_memory`] has been called.
 static KEEP_FREED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
