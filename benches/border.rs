@@ -1,9 +1,9 @@
 //! The border field's stages on a synthetic 4096 × 2048 panorama (sky, a wavy wall, a box and a
-//! pillar), best of five each: Laplacian, edge mask, jump flooding and the whole
+//! pillar), best of five each: Laplacian, edge mask, distance field and the whole
 //! `border_distance`: `cargo bench --bench border`. `MVAO_BENCH_WIDTH=W` uses a W × W/2 map.
 
 use mvao::testing::merge::border::{
-    border_distance, edge_mask, jump_flood, laplacian, EDGE_QUANTILE,
+    border_distance, distance_field, edge_mask, laplacian, EDGE_QUANTILE,
 };
 use std::time::{Duration, Instant};
 
@@ -45,12 +45,12 @@ fn main() {
     }
     let (lap, t_lap) = best(|| laplacian(&depth, w, h, true));
     let (edges, t_mask) = best(|| edge_mask(&lap, &depth, EDGE_QUANTILE));
-    let (dist, t_jfa) = best(|| jump_flood(&edges, w, h, true));
+    let (dist, t_field) = best(|| distance_field(&edges, w, h, true));
     let (total, t_total) = best(|| border_distance(&depth, w, h, true));
     assert_eq!(dist, total, "border_distance differs from its stages");
     println!(
         "{w}x{h} on {} threads (best of 5): laplacian {t_lap:?}, edge_mask {t_mask:?} \
-         ({} edges), jump_flood {t_jfa:?}; border_distance {t_total:?}",
+         ({} edges), distance_field {t_field:?}; border_distance {t_total:?}",
         rayon::current_num_threads(),
         edges.iter().filter(|e| **e).count()
     );

@@ -1,8 +1,7 @@
 //! Depth-discontinuity distance field for the multi-view merge. This module owns the border
 //! term's inputs: the relative Laplacian of a scan's depth map, the edge mask (Laplacian above
 //! its 0.95 quantile) and, for every pixel, the Euclidean pixel distance `d_b` to the nearest
-//! edge, computed by jump flooding (Rong & Tan 2006) with extra passes that make it exact in
-//! practice. Depth maps are row-major `width × height` `f32`; empty pixels are non-finite
+//! edge, computed exactly by two separable passes ([`distance_field`]). Depth maps are row-major `width × height` `f32`; empty pixels are non-finite
 //! (normally `f32::INFINITY`). With `wrap_x` the map is a 360° panorama whose left and right
 //! columns are neighbours.
 
@@ -179,29 +178,137 @@ fn nth_valid(lap: &[f32], depth: &[f32], k: usize) -> f32 {
     }
 }
 
-/// Euclidean distance in pixels from every pixel to the nearest seed, by jump flooding.
+/// Euclidean distance in pixels from every pixel to the nearest seed, exact.
 ///
 /// The distance between pixels `(x, y)` and `(sx, sy)` is `√(dx² + dy²)` with `dy = |y − sy|` and
-/// `dx = |x − sx|`, or `min(dx, width − dx)` with `wrap_x`. Schedule "1+JFA+3": one pass with
-/// step 1, the standard passes with steps `k, k/2, …, 1` (`k` the smallest power of two
-/// `≥ max(width, height)/2`), then three more with steps 4, 2 and 1 (16 passes for 4096 × 2048).
-/// Each pass looks at the 3×3 neighbourhood at the step and keeps the nearest seed, in parallel
-/// over rows, ping-ponging two buffers of packed seed coordinates. The result equals
-/// [`brute_force_distance`] at every pixel of the test suite; on a stress run of random sparse
-/// images (see the ignored test `jfa_variant_error_rates`) about 2·10⁻⁸ of the pixels came out
-/// slightly too far (by less than 1 px), the known residual of jump flooding. No seeds → every pixel is `f32::INFINITY`; an empty image gives an empty
-/// vector. A `seeds` slice of the wrong length is truncated or padded with non-seeds.
-pub fn jump_flood(seeds: &[bool], width: usize, height: usize, wrap_x: bool) -> Vec<f32> {
-    flood_with_steps(
-        seeds,
-        width,
-        height,
-        wrap_x,
-        &jfa_steps(width, height, true, &[4, 2, 1]),
-    )
+/// `dx = |x − sx|`, or `min(dx, width − dx)` with `wrap_x`. Two separable passes (Felzenszwalb &
+/// Huttenlocher 2012): each column's distance to its nearest seed, then per row the lower
+/// envelope of the parabolas `(x − x')² + g(x')²`, over a row extended by half its width on both
+/// sides when it wraps. The squared distances are exact integers, so the result equals
+/// [`brute_force_distance`] bit for bit. No seeds → every pixel is `f32::INFINITY`; an empty
+/// image gives an empty vector. A `seeds` slice of the wrong length is truncated or padded with
+/// non-seeds.
+pub fn distance_field(seeds: &[bool], width: usize, height: usize, wrap_x: bool) -> Vec<f32> {
+    let n = width.saturating_mul(height);
+    if n == 0 {
+        return Vec::new();
+    }
+    let seeds = fit(seeds, n, false);
+    let cols = column_distances(&seeds, width, height);
+    let pad = if wrap_x { width / 2 } else { 0 };
+    let mut out = crate::par::filled(n, f32::INFINITY);
+    out.par_chunks_mut(width)
+        .zip(cols.par_chunks(width))
+        .with_min_len(ROWS_PER_TASK)
+        .for_each_init(Envelope::default, |env, (row, g)| {
+            env.build(g, pad);
+            env.read(row);
+        });
+    out
 }
 
-/// Exact distance to the nearest seed (same metric as [`jump_flood`]) by comparing every pixel
+/// "No seed in this column" in [`column_distances`].
+const NO_SEED: u32 = u32::MAX;
+
+/// Per pixel, the distance to the nearest seed of its column ([`NO_SEED`] where the column
+/// has none): one sweep down and one up, each row at once.
+fn column_distances(seeds: &[bool], width: usize, height: usize) -> Vec<u32> {
+    let mut g = crate::par::filled(width * height, NO_SEED);
+    for y in 0..height {
+        let (done, rest) = g.split_at_mut(y * width);
+        let row = &mut rest[..width];
+        let s = &seeds[y * width..(y + 1) * width];
+        match done
+            .get(done.len().saturating_sub(width)..)
+            .filter(|_| y > 0)
+        {
+            Some(above) => {
+                for ((v, &a), &s) in row.iter_mut().zip(above).zip(s) {
+                    *v = if s { 0 } else { a.saturating_add(1) };
+                }
+            }
+            None => {
+                for (v, &s) in row.iter_mut().zip(s) {
+                    *v = if s { 0 } else { NO_SEED };
+                }
+            }
+        }
+    }
+    for y in (0..height.saturating_sub(1)).rev() {
+        let (head, below) = g.split_at_mut((y + 1) * width);
+        let row = &mut head[y * width..];
+        for (v, &b) in row.iter_mut().zip(&below[..width]) {
+            *v = (*v).min(b.saturating_add(1));
+        }
+    }
+    g
+}
+
+/// The lower envelope of one row's parabolas, with its scratch kept across rows.
+#[derive(Default)]
+struct Envelope {
+    /// Apexes (positions in the extended row, `x − pad`) and their heights `g²`.
+    at: Vec<i64>,
+    height: Vec<i64>,
+    /// `from[k]`: where parabola `k` starts being the lowest.
+    from: Vec<f64>,
+}
+
+impl Envelope {
+    /// The envelope of the parabolas of row `g` (column distances), the row extended by `pad`
+    /// pixels on each side with the wrapped-around columns.
+    fn build(&mut self, g: &[u32], pad: usize) {
+        self.at.clear();
+        self.height.clear();
+        self.from.clear();
+        let w = g.len();
+        // Column of extended position `e` is `(e − pad) mod w`, stepped without a division.
+        let mut col = (w - pad) % w.max(1);
+        for e in 0..w + 2 * pad {
+            let gv = g[col];
+            col = if col + 1 == w { 0 } else { col + 1 };
+            if gv == NO_SEED {
+                continue;
+            }
+            let (q, fq) = (e as i64 - pad as i64, i64::from(gv) * i64::from(gv));
+            let mut s = f64::NEG_INFINITY;
+            while let (Some(&v), Some(&fv), Some(&z)) =
+                (self.at.last(), self.height.last(), self.from.last())
+            {
+                // Where parabola q starts lying below the last one (apexes strictly ordered).
+                s = ((fq + q * q) - (fv + v * v)) as f64 / (2 * (q - v)) as f64;
+                if s > z {
+                    break;
+                }
+                self.at.pop();
+                self.height.pop();
+                self.from.pop();
+                s = f64::NEG_INFINITY;
+            }
+            self.at.push(q);
+            self.height.push(fq);
+            self.from.push(s);
+        }
+    }
+
+    /// The distances of row pixels `0..row.len()` from the envelope (`∞` when it is empty).
+    fn read(&self, row: &mut [f32]) {
+        if self.at.is_empty() {
+            return;
+        }
+        let mut k = 0;
+        for (x, o) in row.iter_mut().enumerate() {
+            let x = x as i64;
+            while k + 1 < self.at.len() && self.from[k + 1] <= x as f64 {
+                k += 1;
+            }
+            let dx = x - self.at[k];
+            *o = to_distance((dx * dx + self.height[k]) as u64);
+        }
+    }
+}
+
+/// Exact distance to the nearest seed (same metric as [`distance_field`]) by comparing every pixel
 /// with every seed: `O(pixels × seeds)`. A reference for tests and checks, not for production
 /// use.
 pub fn brute_force_distance(seeds: &[bool], width: usize, height: usize, wrap_x: bool) -> Vec<f32> {
@@ -234,14 +341,14 @@ pub fn brute_force_distance(seeds: &[bool], width: usize, height: usize, wrap_x:
 }
 
 /// Distance in pixels from every pixel to the nearest depth discontinuity:
-/// [`laplacian`] → [`edge_mask`] at [`EDGE_QUANTILE`] → [`jump_flood`]. Empty pixels get a
+/// [`laplacian`] → [`edge_mask`] at [`EDGE_QUANTILE`] → [`distance_field`]. Empty pixels get a
 /// distance too; a map without edges gives `f32::INFINITY` everywhere.
 pub fn border_distance(depth: &[f32], width: usize, height: usize, wrap_x: bool) -> Vec<f32> {
     let n = width.saturating_mul(height);
     let depth = fit(depth, n, f32::INFINITY);
     let lap = laplacian(&depth, width, height, wrap_x);
     let edges = edge_mask(&lap, &depth, EDGE_QUANTILE);
-    jump_flood(&edges, width, height, wrap_x)
+    distance_field(&edges, width, height, wrap_x)
 }
 
 /// `v` with exactly `n` elements: truncated, or padded with `pad`.
@@ -274,341 +381,6 @@ fn to_distance(d2: u64) -> f32 {
         f32::INFINITY
     } else {
         (d2 as f64).sqrt() as f32
-    }
-}
-
-/// The step sequence: optionally a leading step-1 pass, the halving steps from the smallest
-/// power of two `≥ ⌈max(width, height)/2⌉` down to 1, then `post`.
-fn jfa_steps(width: usize, height: usize, pre: bool, post: &[usize]) -> Vec<usize> {
-    let half = width.max(height).div_ceil(2).max(1);
-    let mut k = half
-        .checked_next_power_of_two()
-        .unwrap_or(1 << (usize::BITS - 1));
-    let mut steps = Vec::new();
-    if pre {
-        steps.push(1);
-    }
-    while k >= 1 {
-        steps.push(k);
-        k /= 2;
-    }
-    steps.extend_from_slice(post);
-    steps
-}
-
-/// A pixel's nearest-seed coordinates packed into one word; `NONE` means "no seed yet".
-trait Cell: Copy + Eq + Send + Sync {
-    /// Squared distance type.
-    type D: Copy + Ord + Send;
-    const NONE: Self;
-    const FAR: Self::D;
-    fn pack(x: usize, y: usize) -> Self;
-    fn unpack(self) -> (usize, usize);
-    /// Squared distance from pixel `(x, y)` to this seed, `FAR` for `NONE`.
-    fn dist2(self, x: usize, y: usize, width: usize, wrap_x: bool) -> Self::D;
-    /// [`relax`]: pixels `x0, x0 + 1, …` of row `y` against the candidates `cand`.
-    #[inline(always)]
-    fn relax_run(
-        best: &mut [Self],
-        best_d: &mut [Self::D],
-        cand: &[Self],
-        x0: usize,
-        y: usize,
-        width: usize,
-        wrap_x: bool,
-    ) {
-        relax(best, best_d, cand, x0, y, width, wrap_x);
-    }
-}
-
-/// 16 + 16 bits, for images up to 32767 × 32767, so that `NONE` is never a real pixel and
-/// squared distances (at most 2 · 32767² < 2³¹) fit signed 32-bit arithmetic, which vectorises
-/// with the baseline x86-64 instructions (signed compares; `dx² + dy²` as one multiply-add of
-/// the packed 16-bit halves).
-impl Cell for u32 {
-    type D = i32;
-    const NONE: Self = u32::MAX;
-    const FAR: i32 = i32::MAX;
-    #[inline(always)]
-    fn pack(x: usize, y: usize) -> Self {
-        ((x as u32) << 16) | y as u32
-    }
-    #[inline(always)]
-    fn unpack(self) -> (usize, usize) {
-        ((self >> 16) as usize, (self & 0xFFFF) as usize)
-    }
-    #[inline(always)]
-    fn dist2(self, x: usize, y: usize, width: usize, wrap_x: bool) -> i32 {
-        // Real coordinates are below 2^15, so nothing here can overflow; `NONE` gives
-        // garbage that is replaced below.
-        let sx = (self >> 16) as i32;
-        let sy = (self & 0xFFFF) as i32;
-        let mut dx = (x as i32).wrapping_sub(sx).wrapping_abs();
-        if wrap_x {
-            dx = dx.min((width as i32).wrapping_sub(dx));
-        }
-        let dy = (y as i32).wrapping_sub(sy);
-        let d = dx.wrapping_mul(dx).wrapping_add(dy.wrapping_mul(dy));
-        if self == Self::NONE {
-            i32::MAX
-        } else {
-            d
-        }
-    }
-    #[cfg(target_arch = "x86_64")]
-    #[inline(always)]
-    fn relax_run(
-        best: &mut [u32],
-        best_d: &mut [i32],
-        cand: &[u32],
-        x0: usize,
-        y: usize,
-        width: usize,
-        wrap_x: bool,
-    ) {
-        let n = best.len().min(best_d.len()).min(cand.len());
-        let done = relax_sse2(
-            &mut best[..n],
-            &mut best_d[..n],
-            &cand[..n],
-            x0,
-            y,
-            width,
-            wrap_x,
-        );
-        relax(
-            &mut best[done..n],
-            &mut best_d[done..n],
-            &cand[done..n],
-            x0 + done,
-            y,
-            width,
-            wrap_x,
-        );
-    }
-}
-
-/// [`relax`] on four `u32` cells at a time with SSE2 (part of every x86-64 CPU): the pixel's
-/// and the seed's packed coordinates are subtracted as 16-bit lanes, giving `(dy, dx)` in each
-/// 32-bit lane, and `pmaddwd` squares and sums them exactly (`|dx|, |dy| ≤ 32767`). Same
-/// distances, ties and results as the scalar loop. Returns how many leading pixels it relaxed
-/// (a multiple of 4); the caller finishes the rest.
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn relax_sse2(
-    best: &mut [u32],
-    best_d: &mut [i32],
-    cand: &[u32],
-    x0: usize,
-    y: usize,
-    width: usize,
-    wrap_x: bool,
-) -> usize {
-    use std::arch::x86_64::*;
-    let chunks = best.len().min(best_d.len()).min(cand.len()) / 4;
-    if chunks == 0 {
-        return 0;
-    }
-    // SAFETY: SSE2 is in the x86-64 baseline; every load and store is of four elements at
-    // offset 4k with k < chunks, inside all three slices (unaligned accesses).
-    unsafe {
-        let mut pix = _mm_add_epi32(
-            _mm_set1_epi32(<u32 as Cell>::pack(x0, y) as i32),
-            _mm_setr_epi32(0, 1 << 16, 2 << 16, 3 << 16),
-        );
-        let step = _mm_set1_epi32(4 << 16);
-        let none = _mm_set1_epi32(-1);
-        let far = _mm_set1_epi32(i32::MAX);
-        let zero = _mm_setzero_si128();
-        // The width in the x half of each lane, and a mask selecting that half.
-        let wv = _mm_set1_epi32((width as i32) << 16);
-        let x_half = _mm_set1_epi32(0xFFFF_0000u32 as i32);
-        let select = |m: __m128i, a: __m128i, b: __m128i| {
-            _mm_or_si128(_mm_and_si128(m, a), _mm_andnot_si128(m, b))
-        };
-        for k in 0..chunks {
-            let c = _mm_loadu_si128(cand.as_ptr().add(4 * k).cast());
-            let d = _mm_sub_epi16(pix, c);
-            let mut a = _mm_max_epi16(d, _mm_sub_epi16(zero, d));
-            if wrap_x {
-                let short = _mm_min_epi16(a, _mm_sub_epi16(wv, a));
-                a = select(x_half, short, a);
-            }
-            let d2 = select(_mm_cmpeq_epi32(c, none), far, _mm_madd_epi16(a, a));
-            let bd_ptr = best_d.as_mut_ptr().add(4 * k).cast::<__m128i>();
-            let b_ptr = best.as_mut_ptr().add(4 * k).cast::<__m128i>();
-            let old = _mm_loadu_si128(bd_ptr);
-            let nearer = _mm_cmpgt_epi32(old, d2);
-            _mm_storeu_si128(b_ptr, select(nearer, c, _mm_loadu_si128(b_ptr)));
-            _mm_storeu_si128(bd_ptr, select(nearer, d2, old));
-            pix = _mm_add_epi32(pix, step);
-        }
-    }
-    4 * chunks
-}
-
-/// 32 + 32 bits, for larger images.
-impl Cell for u64 {
-    type D = u64;
-    const NONE: Self = u64::MAX;
-    const FAR: u64 = u64::MAX;
-    #[inline(always)]
-    fn pack(x: usize, y: usize) -> Self {
-        ((x as u64) << 32) | y as u64
-    }
-    #[inline(always)]
-    fn unpack(self) -> (usize, usize) {
-        ((self >> 32) as usize, (self & 0xFFFF_FFFF) as usize)
-    }
-    #[inline(always)]
-    fn dist2(self, x: usize, y: usize, width: usize, wrap_x: bool) -> u64 {
-        if self == Self::NONE {
-            return u64::MAX;
-        }
-        let (sx, sy) = self.unpack();
-        dist2(x, y, sx, sy, width, wrap_x)
-    }
-}
-
-/// Jump flooding with an explicit step sequence (see [`jump_flood`]).
-fn flood_with_steps(
-    seeds: &[bool],
-    width: usize,
-    height: usize,
-    wrap_x: bool,
-    steps: &[usize],
-) -> Vec<f32> {
-    let n = width.saturating_mul(height);
-    if n == 0 {
-        return Vec::new();
-    }
-    let seeds = fit(seeds, n, false);
-    if !seeds.iter().any(|&s| s) {
-        return vec![f32::INFINITY; n];
-    }
-    if width < 0x8000 && height < 0x8000 {
-        flood::<u32>(&seeds, width, height, wrap_x, steps)
-    } else if (width as u64) < u64::from(u32::MAX) && (height as u64) < u64::from(u32::MAX) {
-        flood::<u64>(&seeds, width, height, wrap_x, steps)
-    } else {
-        brute_force_distance(&seeds, width, height, wrap_x)
-    }
-}
-
-/// Jump flooding with seed coordinates packed in `C`; `seeds` has `width × height` values.
-fn flood<C: Cell>(
-    seeds: &[bool],
-    width: usize,
-    height: usize,
-    wrap_x: bool,
-    steps: &[usize],
-) -> Vec<f32> {
-    let mut a: Vec<C> = crate::par::filled(width * height, C::NONE);
-    a.par_chunks_mut(width)
-        .zip(seeds.par_chunks(width))
-        .enumerate()
-        .for_each(|(y, (row, s))| {
-            for (x, (c, &s)) in row.iter_mut().zip(s).enumerate() {
-                if s {
-                    *c = C::pack(x, y);
-                }
-            }
-        });
-    let mut b: Vec<C> = crate::par::filled(width * height, C::NONE);
-    for &k in steps {
-        jfa_pass(&a, &mut b, width, height, k, wrap_x);
-        std::mem::swap(&mut a, &mut b);
-    }
-    let mut out = crate::par::filled(width * height, f32::INFINITY);
-    out.par_chunks_mut(width)
-        .zip(a.par_chunks(width))
-        .enumerate()
-        .for_each(|(y, (o, cells))| {
-            for (x, (o, &c)) in o.iter_mut().zip(cells).enumerate() {
-                if c != C::NONE {
-                    let (sx, sy) = c.unpack();
-                    *o = to_distance(dist2(x, y, sx, sy, width, wrap_x));
-                }
-            }
-        });
-    out
-}
-
-/// One jump-flooding pass with step `k`: every pixel keeps the nearest of the seeds recorded
-/// at itself and at its 8 neighbours `k` pixels away. Each output row is relaxed against the
-/// (up to) three source rows, each shifted by `−k`, `0` and `+k` in contiguous runs, so the
-/// inner loops have no bounds checks or wrap branches.
-fn jfa_pass<C: Cell>(
-    src: &[C],
-    dst: &mut [C],
-    width: usize,
-    height: usize,
-    k: usize,
-    wrap_x: bool,
-) {
-    // (first output column, first source column, run length) for the shifted reads.
-    let mut runs: Vec<(usize, usize, usize)> = vec![(0, 0, width)];
-    if wrap_x {
-        let kx = k % width;
-        if kx != 0 {
-            runs.push((kx, 0, width - kx)); // reads x − k
-            runs.push((0, width - kx, kx));
-            runs.push((0, kx, width - kx)); // reads x + k
-            runs.push((width - kx, 0, kx));
-        }
-    } else if k < width {
-        runs.push((k, 0, width - k));
-        runs.push((0, k, width - k));
-    }
-    let runs = &runs[..];
-    dst.par_chunks_mut(width)
-        .enumerate()
-        .with_min_len(ROWS_PER_TASK)
-        .for_each_init(
-            || vec![C::FAR; width],
-            |best_d, (y, row)| {
-                row.fill(C::NONE);
-                best_d.fill(C::FAR);
-                let rows = [
-                    y.checked_sub(k),
-                    Some(y),
-                    y.checked_add(k).filter(|&v| v < height),
-                ];
-                for ny in rows.into_iter().flatten() {
-                    let srow = &src[ny * width..(ny + 1) * width];
-                    for &(x0, s0, len) in runs {
-                        C::relax_run(
-                            &mut row[x0..x0 + len],
-                            &mut best_d[x0..x0 + len],
-                            &srow[s0..s0 + len],
-                            x0,
-                            y,
-                            width,
-                            wrap_x,
-                        );
-                    }
-                }
-            },
-        );
-}
-
-/// Relaxes pixels `x0, x0 + 1, …` of row `y` against the candidate seeds `cand`.
-#[inline(always)]
-fn relax<C: Cell>(
-    best: &mut [C],
-    best_d: &mut [C::D],
-    cand: &[C],
-    x0: usize,
-    y: usize,
-    width: usize,
-    wrap_x: bool,
-) {
-    for (i, ((b, bd), &c)) in best.iter_mut().zip(best_d.iter_mut()).zip(cand).enumerate() {
-        // Branch-free selects and unconditional stores so the loop vectorises.
-        let d = c.dist2(x0 + i, y, width, wrap_x);
-        let old = *bd;
-        *b = if d < old { c } else { *b };
-        *bd = old.min(d);
     }
 }
 

@@ -40,7 +40,7 @@ const SIZES: [(usize, usize); 8] = [
 const DENSITIES: [f64; 4] = [0.001, 0.01, 0.1, 0.5];
 
 #[test]
-fn jump_flood_equals_brute_force_on_random_images() {
+fn distance_field_equals_brute_force_on_random_images() {
     let mut rng = Rng(12345);
     let mut cases = 0;
     for &(w, h) in &SIZES {
@@ -49,9 +49,9 @@ fn jump_flood_equals_brute_force_on_random_images() {
                 let reps = if w * h >= 4096 { 4 } else { 12 };
                 for _ in 0..reps {
                     let seeds = random_seeds(&mut rng, w * h, density);
-                    let jfa = jump_flood(&seeds, w, h, wrap);
+                    let field = distance_field(&seeds, w, h, wrap);
                     let exact = brute_force_distance(&seeds, w, h, wrap);
-                    let bad = mismatches(&jfa, &exact);
+                    let bad = mismatches(&field, &exact);
                     assert_eq!(bad, 0, "{w}x{h} density {density} wrap {wrap}");
                     cases += 1;
                 }
@@ -62,54 +62,47 @@ fn jump_flood_equals_brute_force_on_random_images() {
 }
 
 #[test]
-fn jump_flood_single_seeds_and_wrap() {
-    // A single seed anywhere: the JFA's hardest case for long distances.
+fn distance_field_single_seeds_and_wrap() {
+    // A single seed anywhere: the longest distances.
     for (w, h) in [(13, 7), (64, 3), (5, 40), (100, 100)] {
         for wrap in [false, true] {
             for i in [0, w * h / 2 + 1, w * h - 1, w - 1, (h - 1) * w] {
                 let mut seeds = vec![false; w * h];
                 seeds[i] = true;
-                let jfa = jump_flood(&seeds, w, h, wrap);
+                let field = distance_field(&seeds, w, h, wrap);
                 let exact = brute_force_distance(&seeds, w, h, wrap);
-                assert_eq!(mismatches(&jfa, &exact), 0, "{w}x{h} seed {i} wrap {wrap}");
+                assert_eq!(
+                    mismatches(&field, &exact),
+                    0,
+                    "{w}x{h} seed {i} wrap {wrap}"
+                );
             }
         }
     }
     // Wrapping distance goes across the seam.
     let mut seeds = vec![false; 10];
     seeds[0] = true;
-    let d = jump_flood(&seeds, 10, 1, true);
+    let d = distance_field(&seeds, 10, 1, true);
     assert_eq!(d, vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 4.0, 3.0, 2.0, 1.0]);
-    let d = jump_flood(&seeds, 10, 1, false);
+    let d = distance_field(&seeds, 10, 1, false);
     assert_eq!(d[9], 9.0);
     let mut seeds = vec![false; 12];
     seeds[0] = true; // (0, 0) in a 4 × 3 image
-    let d = jump_flood(&seeds, 4, 3, false);
+    let d = distance_field(&seeds, 4, 3, false);
     assert_eq!(d[11], 13f32.sqrt()); // (3, 2)
 }
 
 #[test]
-fn jump_flood_degenerate_inputs() {
-    assert!(jump_flood(&[], 0, 5, false).is_empty());
-    assert!(jump_flood(&[], 5, 0, true).is_empty());
+fn distance_field_degenerate_inputs() {
+    assert!(distance_field(&[], 0, 5, false).is_empty());
+    assert!(distance_field(&[], 5, 0, true).is_empty());
     assert!(brute_force_distance(&[], 0, 0, false).is_empty());
-    let d = jump_flood(&[false; 6], 3, 2, false);
+    let d = distance_field(&[false; 6], 3, 2, false);
     assert!(d.iter().all(|v| *v == f32::INFINITY));
-    assert_eq!(jump_flood(&[true], 1, 1, true), vec![0.0]);
-    assert_eq!(jump_flood(&[false], 1, 1, false), vec![f32::INFINITY]);
+    assert_eq!(distance_field(&[true], 1, 1, true), vec![0.0]);
+    assert_eq!(distance_field(&[false], 1, 1, false), vec![f32::INFINITY]);
     // Too short a mask is padded with non-seeds.
-    assert_eq!(jump_flood(&[true], 3, 1, false), vec![0.0, 1.0, 2.0]);
-}
-
-#[test]
-fn step_schedule() {
-    assert_eq!(jfa_steps(1, 1, false, &[]), vec![1]);
-    assert_eq!(
-        jfa_steps(37, 23, true, &[2, 1]),
-        vec![1, 32, 16, 8, 4, 2, 1, 2, 1]
-    );
-    assert_eq!(jfa_steps(64, 64, false, &[]), vec![32, 16, 8, 4, 2, 1]);
-    assert_eq!(jfa_steps(65, 3, false, &[]), vec![64, 32, 16, 8, 4, 2, 1]);
+    assert_eq!(distance_field(&[true], 3, 1, false), vec![0.0, 1.0, 2.0]);
 }
 
 const INF: f32 = f32::INFINITY;
@@ -292,87 +285,18 @@ fn depth_step_gives_edges_along_the_step() {
     }
 }
 
-/// Error rates of JFA variants against brute force (run with `--release -- --ignored
-/// --nocapture`): the fixed suite of the exactness test plus 512 × 256, then a stress suite
-/// of random sizes up to 160 × 160 with sparse seeds (the hard case).
 #[test]
-#[ignore]
-fn jfa_variant_error_rates() {
-    type Schedule = fn(usize, usize) -> Vec<usize>;
-    const VARIANTS: [(&str, Schedule); 7] = [
-        ("JFA", |w, h| jfa_steps(w, h, false, &[])),
-        ("1+JFA", |w, h| jfa_steps(w, h, true, &[])),
-        ("JFA+1", |w, h| jfa_steps(w, h, false, &[1])),
-        ("JFA+2", |w, h| jfa_steps(w, h, false, &[2, 1])),
-        ("1+JFA+2", |w, h| jfa_steps(w, h, true, &[2, 1])),
-        ("1+JFA+3", |w, h| jfa_steps(w, h, true, &[4, 2, 1])),
-        ("1+JFA+JFA", |w, h| {
-            let mut s = jfa_steps(w, h, true, &[]);
-            s.extend(jfa_steps(w, h, false, &[]));
-            s
-        }),
-    ];
-    // Per variant: wrong pixels, wrong images, largest error.
-    type Stats = [(usize, usize, f32); VARIANTS.len()];
-    fn run(stats: &mut Stats, seeds: &[bool], w: usize, h: usize, wrap: bool) {
-        let exact = brute_force_distance(seeds, w, h, wrap);
-        for (st, (_, schedule)) in stats.iter_mut().zip(VARIANTS) {
-            let jfa = flood_with_steps(seeds, w, h, wrap, &schedule(w, h));
-            let bad = mismatches(&jfa, &exact);
-            st.0 += bad;
-            st.1 += usize::from(bad > 0);
-            for (a, b) in jfa.iter().zip(&exact) {
-                if a.is_finite() && b.is_finite() {
-                    st.2 = st.2.max(a - b);
-                }
-            }
-        }
-    }
-    fn report(title: &str, stats: &Stats, pixels: usize, images: usize) {
-        println!("{title}: {images} images, {pixels} pixels");
-        for ((name, _), (bad, bad_img, max)) in VARIANTS.iter().zip(stats) {
-            println!(
-                "  {name:12} {bad:6} wrong pixels ({:.1e}), {bad_img:4} images, \
-                     max error {max:.3} px",
-                *bad as f64 / pixels as f64
-            );
-        }
-    }
-
+fn distance_field_equals_brute_force_on_random_sizes() {
+    // Odd and tiny widths, single rows and columns, sparse seeds: the envelope's edge cases.
     let mut rng = Rng(777);
-    let mut stats: Stats = [(0, 0, 0.0); VARIANTS.len()];
-    let (mut pixels, mut images) = (0, 0);
-    let mut sizes = SIZES.to_vec();
-    sizes.push((512, 256));
-    for &(w, h) in &sizes {
-        for &density in &[0.0002, 0.001, 0.01, 0.1, 0.5] {
-            let n = (w * h) as f64;
-            if n * n * density > 5e8 {
-                continue; // brute force too slow
-            }
-            for wrap in [false, true] {
-                let reps = if w * h > 20_000 { 3 } else { 20 };
-                for _ in 0..reps {
-                    let seeds = random_seeds(&mut rng, w * h, density);
-                    run(&mut stats, &seeds, w, h, wrap);
-                    pixels += w * h;
-                    images += 1;
-                }
-            }
-        }
-    }
-    report("fixed suite", &stats, pixels, images);
-
-    let mut stats: Stats = [(0, 0, 0.0); VARIANTS.len()];
-    let (mut pixels, mut images) = (0, 0);
-    for i in 0..20_000 {
-        let w = 1 + (rng.next() % 160) as usize;
-        let h = 1 + (rng.next() % 160) as usize;
-        let density = [0.0005, 0.001, 0.002, 0.004, 0.01, 0.05][i % 6];
+    for i in 0..3000 {
+        let w = 1 + (rng.next() % 40) as usize;
+        let h = 1 + (rng.next() % 40) as usize;
+        let density = [0.0005, 0.002, 0.01, 0.05, 0.3][i % 5];
         let seeds = random_seeds(&mut rng, w * h, density);
-        run(&mut stats, &seeds, w, h, i % 2 == 0);
-        pixels += w * h;
-        images += 1;
+        let wrap = i % 2 == 0;
+        let field = distance_field(&seeds, w, h, wrap);
+        let exact = brute_force_distance(&seeds, w, h, wrap);
+        assert_eq!(mismatches(&field, &exact), 0, "{w}x{h} wrap {wrap}");
     }
-    report("stress suite", &stats, pixels, images);
 }
