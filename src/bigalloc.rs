@@ -63,6 +63,15 @@ fn untrack(addr: usize) -> bool {
     slot.is_some()
 }
 
+/// Moves the entry of `old` to `new` (a block that moved keeps its slot).
+fn retrack(old: usize, new: usize) {
+    lock();
+    if let Some(s) = SLOT.iter().find(|s| s.load(Ordering::Relaxed) == old) {
+        s.store(new, Ordering::Relaxed);
+    }
+    unlock();
+}
+
 /// Bytes mapped for a block of `size` bytes.
 fn mapped_len(size: usize) -> usize {
     size.div_ceil(HUGE) * HUGE
@@ -224,19 +233,8 @@ unsafe impl GlobalAlloc for BigAlloc {
             // The kernel moves the pages instead of copying them.
             let p = os::remap(ptr, layout.size(), new_size);
             if !p.is_null() {
-                untrack(ptr as usize);
-                if track(p as usize) {
-                    return p;
-                }
-                // Table full: hand the moved block to the system's allocator.
-                // SAFETY: `new` is a valid non-zero layout.
-                let q = unsafe { System.alloc(new) };
-                if !q.is_null() {
-                    // SAFETY: both blocks are live, distinct and at least this long.
-                    unsafe { std::ptr::copy_nonoverlapping(p, q, layout.size().min(new_size)) };
-                }
-                os::unmap(p, new_size);
-                return q;
+                retrack(ptr as usize, p as usize);
+                return p;
             }
         }
         // SAFETY: `new` is a valid non-zero layout.
