@@ -1,9 +1,9 @@
 //! Depth-discontinuity distance field for the multi-view merge. This module owns the border
 //! term's inputs: the relative Laplacian of a scan's depth map, the edge mask (Laplacian above
 //! its 0.95 quantile) and, for every pixel, the Euclidean pixel distance `d_b` to the nearest
-//! edge, computed exactly by two separable passes ([`distance_field`]). Depth maps are row-major `width × height` `f32`; empty pixels are non-finite
-//! (normally `f32::INFINITY`). With `wrap_x` the map is a 360° panorama whose left and right
-//! columns are neighbours.
+//! edge, computed exactly by two separable passes ([`distance_field`]). Depth maps are
+//! row-major `width × height` `f32`; empty pixels are non-finite (normally `f32::INFINITY`).
+//! With `wrap_x` the map is a 360° panorama whose left and right columns are neighbours.
 
 use rayon::prelude::*;
 use std::borrow::Cow;
