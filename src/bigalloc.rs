@@ -167,6 +167,15 @@ mod os {
 }
 
 impl BigAlloc {
+    /// A mapped block for `layout` when it gets one ([`wanted`]) and the system grants it.
+    fn wanted_map(layout: Layout) -> Option<*mut u8> {
+        if !wanted(layout) {
+            return None;
+        }
+        let p = Self::map(layout);
+        (!p.is_null()).then_some(p)
+    }
+
     /// A mapped block for `layout`, tracked; null when it cannot be had (the caller then asks
     /// the system).
     fn map(layout: Layout) -> *mut u8 {
@@ -184,26 +193,20 @@ impl BigAlloc {
 // accepted), zeroed when made and unmapped exactly once when freed.
 unsafe impl GlobalAlloc for BigAlloc {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if wanted(layout) {
-            let p = Self::map(layout);
-            if !p.is_null() {
-                return p;
-            }
+        match Self::wanted_map(layout) {
+            Some(p) => p,
+            // SAFETY: forwarded with the caller's guarantees.
+            None => unsafe { System.alloc(layout) },
         }
-        // SAFETY: forwarded with the caller's guarantees.
-        unsafe { System.alloc(layout) }
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        if wanted(layout) {
-            // Fresh mappings read as zero: no fill, and no page touched before it is used.
-            let p = Self::map(layout);
-            if !p.is_null() {
-                return p;
-            }
+        // Fresh mappings read as zero: no fill, and no page touched before it is used.
+        match Self::wanted_map(layout) {
+            Some(p) => p,
+            // SAFETY: forwarded with the caller's guarantees.
+            None => unsafe { System.alloc_zeroed(layout) },
         }
-        // SAFETY: forwarded with the caller's guarantees.
-        unsafe { System.alloc_zeroed(layout) }
     }
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {

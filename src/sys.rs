@@ -77,7 +77,7 @@ static KEEP_FREED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool
 /// freed buffers of a stage just over (a view's G-buffer, its SSAO passes) would otherwise
 /// count as held and leave no room for the views that fit.
 pub fn return_freed_memory() {
-    if KEEP_FREED.load(std::sync::atomic::Ordering::Relaxed) {
+    if keeps_freed_memory() {
         return;
     }
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
