@@ -133,6 +133,10 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
 
 /// The union occlusion's parameters: rays reach `t_max`, or twice the largest depth of the
 /// views at `t_max = ∞`; the thickness defaults to a tenth of the SSAO radius.
+///
+/// Samples per ray: 24 to a finite `t_max`; twice that at `t_max = ∞`, where the reach is the
+/// whole site and 24 quadratically spaced samples step over thin occluders a few metres
+/// from the point (`docs/accuracy.md`, "Samples per ray at ∞").
 fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> UnionParams {
     let reach = if sp.tmax.is_finite() {
         sp.tmax
@@ -143,7 +147,7 @@ fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> Union
     };
     UnionParams {
         rays: prm.rays.max(2),
-        steps: 24,
+        steps: if sp.tmax.is_finite() { 24 } else { 48 },
         tmax: sp.tmax,
         falloff: sp.falloff,
         reach,
@@ -665,4 +669,37 @@ fn open_store(
         keep_room: budget.saturating_sub(floor),
     };
     WorkDirStore::open(setup)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn union_rays_take_twice_the_samples_to_reach_the_whole_site() {
+        let sp = |tmax: f32| SsaoParams {
+            estimator: crate::ssao::Estimator::Horizon,
+            radius: 0.2,
+            tmax,
+            falloff: Default::default(),
+            samples: 8,
+            directions: 8,
+            steps: 8,
+            seed: 1,
+            blur: true,
+            sampling: Default::default(),
+        };
+        let mp = MergeParams {
+            neighbors: 1,
+            dmin: 1.0,
+            dmax: 20.0,
+            border_px: 64.0,
+            spacing: 0.0,
+        };
+        let prm = ComputeParams::default();
+        let near = union_params(&prm, &sp(0.4), &mp);
+        assert_eq!((near.steps, near.reach), (24, 0.4));
+        let far = union_params(&prm, &sp(f32::INFINITY), &mp);
+        assert_eq!((far.steps, far.reach), (48, 40.0));
+    }
 }
