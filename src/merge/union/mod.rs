@@ -305,6 +305,96 @@ struct Shaded<'s> {
     n: Vec3,
     rad: f32,
     in_view: &'s [InView],
+    bounds: &'s Bounds,
+}
+
+/// A box (the target's frame) outside which no view holds evidence: every stored point of
+/// every view, widened by how far from a stored point a hit can be found: the solid depth
+/// behind it and two pixels across (an inferred hit, or a crossing between neighbouring
+/// pixels, which lies between their stored points), twice its radius, and a sixteenth of a
+/// gap between samples (a crossing is accepted once four halvings bring both ends within
+/// the radius and that length of the stored depth). A ray outside it and moving away along one axis stays outside: its
+/// remaining samples can find nothing, and it ends there. At `t_max = ∞`, where rays reach
+/// twice the site's depth, many of an upward ray's samples lie above the site.
+#[derive(Debug, Clone, Copy)]
+struct Bounds {
+    lo: Vec3,
+    hi: Vec3,
+}
+
+impl Bounds {
+    /// No bound: every sample is marched.
+    const ALL: Bounds = Bounds {
+        lo: Vec3::NEG_INFINITY,
+        hi: Vec3::INFINITY,
+    };
+
+    /// The bounds of `lenses`' stored points for rays of `prm`.
+    fn of(lenses: &[Lens<'_>], prm: &UnionParams) -> Bounds {
+        // The last gap between samples is under 2·reach/steps.
+        let gap = 2.0 * prm.reach / prm.steps.max(1) as f32;
+        let mut b = Bounds {
+            lo: Vec3::INFINITY,
+            hi: Vec3::NEG_INFINITY,
+        };
+        for l in lenses {
+            // Local box of the stored points, each widened by twice its radius (a crossing
+            // is accepted within its radius of the stored depth), and their largest depth.
+            let (lo, hi, deep) = l
+                .maps
+                .near
+                .par_iter()
+                .filter(|q| q.w != f32::NEG_INFINITY)
+                .fold(
+                    || (Vec3::INFINITY, Vec3::NEG_INFINITY, 0.0f32),
+                    |(lo, hi, d), q| {
+                        let p = q.truncate();
+                        let w = Vec3::splat(2.0 * q.w.max(0.0));
+                        (lo.min(p - w), hi.max(p + w), d.max(l.depth(p)))
+                    },
+                )
+                .reduce(
+                    || (Vec3::INFINITY, Vec3::NEG_INFINITY, 0.0f32),
+                    |a, b| (a.0.min(b.0), a.1.max(b.1), a.2.max(b.2)),
+                );
+            if lo.x > hi.x {
+                continue; // nothing stored
+            }
+            let px = l.pixel_size(deep + prm.reach);
+            let m = solid_depth(prm.thickness, px) + 2.0 * px + gap / 16.0;
+            let (lo, hi) = (lo - Vec3::splat(m), hi + Vec3::splat(m));
+            let back = l.rel.inverse();
+            for c in 0..8 {
+                let corner = Vec3::new(
+                    if c & 1 == 0 { lo.x } else { hi.x },
+                    if c & 2 == 0 { lo.y } else { hi.y },
+                    if c & 4 == 0 { lo.z } else { hi.z },
+                );
+                let q: Vec3 = back.transform_point3a(Vec3A::from(corner)).into();
+                b.lo = b.lo.min(q);
+                b.hi = b.hi.max(q);
+            }
+        }
+        // Rounding of the transforms: a relative margin; anything not finite bounds nothing.
+        let slack = Vec3::splat(1e-4 * (b.lo.abs().max(b.hi.abs()).max_element() + 1.0));
+        let b = Bounds {
+            lo: b.lo - slack,
+            hi: b.hi + slack,
+        };
+        if b.lo.is_finite() && b.hi.is_finite() {
+            b
+        } else {
+            Bounds::ALL
+        }
+    }
+
+    /// Whether a ray at `q` going along `omega` is outside and moving away along some axis.
+    #[inline]
+    fn left(&self, q: Vec3, omega: Vec3) -> bool {
+        let above = q.cmpgt(self.hi) & omega.cmpge(Vec3::ZERO);
+        let below = q.cmplt(self.lo) & omega.cmple(Vec3::ZERO);
+        (above | below).any()
+    }
 }
 
 /// Whether the candidate hit at `q` by view `from` with `ev` holds against the other views.
@@ -456,6 +546,9 @@ fn march(
                 return tc;
             }
         }
+        if pt.bounds.left(q, omega) {
+            break;
+        }
         t_prev = t;
     }
     f32::INFINITY
@@ -560,6 +653,7 @@ pub fn union_scan(
             pixel: pixel_size(v.proj),
         })
         .collect();
+    let bounds = Bounds::of(&lenses, prm);
     let res: Vec<Shade> = (0..t.points.len())
         .into_par_iter()
         .with_min_len(256)
@@ -589,6 +683,7 @@ pub fn union_scan(
                 n,
                 rad,
                 in_view: &sc.in_view,
+                bounds: &bounds,
             };
             let stream = ((t.index as u64) << 40) ^ i as u64;
             shade(&sc.sub, &pt, stream, prm, &mut sc.prev)
@@ -598,4 +693,28 @@ pub fn union_scan(
     let bn = bent.then(|| res.iter().map(|r| r.bent).collect());
     let nearest: Vec<f32> = res.iter().map(|r| r.nearest).collect();
     filter::smooth(t, ao, bn, &nearest, prm)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_ray_has_left_the_bounds_only_outside_and_moving_away() {
+        let b = Bounds {
+            lo: Vec3::new(-1.0, -2.0, 0.0),
+            hi: Vec3::new(1.0, 2.0, 3.0),
+        };
+        let up = Vec3::Z;
+        assert!(!b.left(Vec3::new(0.0, 0.0, 2.9), up), "inside");
+        assert!(b.left(Vec3::new(0.0, 0.0, 3.1), up), "above, rising");
+        assert!(!b.left(Vec3::new(0.0, 0.0, 3.1), -up), "above, coming back");
+        // Outside along x while moving along x towards the box: not yet; once past, yes.
+        let d = Vec3::new(1.0, 0.0, 0.1).normalize();
+        assert!(!b.left(Vec3::new(-1.5, 0.0, 1.0), d));
+        assert!(b.left(Vec3::new(1.5, 0.0, 1.0), d));
+        // Parallel to a face beyond it stays beyond it.
+        assert!(b.left(Vec3::new(0.0, 2.5, 1.0), Vec3::X));
+        assert!(!Bounds::ALL.left(Vec3::splat(1e30), up));
+    }
 }
