@@ -7,7 +7,15 @@
 //! a time, and on the survey suite the kernel spent about an eighth of the run's CPU time in
 //! those faults. Backed by huge pages, the same buffer takes one fault per 2 MiB. While the
 //! run keeps freed memory, the system's allocator (which then recycles it without faults)
-//! serves every block.
+//! serves every new block.
+//!
+//! Even on huge pages the kernel zeroes every fresh page, and a run maps several times its
+//! peak memory over its scans (each scan allocates the same buffers again): on a virtual
+//! machine, where the host may have to back each page anew, that zeroing took a quarter of a
+//! survey run's cycles. So a freed mapping is kept and the next large block takes it (trimmed,
+//! or grown in place by the kernel), never adding to what the process would hold without the
+//! keeping: a block that grows a kept mapping returns as many bytes of the other kept ones.
+//! [`kept_bytes`] tells the memory probes how much of the resident memory is kept this way.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -25,8 +33,172 @@ pub struct BigAlloc;
 /// Start addresses of the live mappings (0: free slot). A block is ours exactly when its
 /// address is here, so a block the system allocated is always returned to the system.
 static SLOT: [AtomicUsize; SLOTS] = [const { AtomicUsize::new(0) }; SLOTS];
-/// Serialises changes to [`SLOT`] (lookups read it without the lock).
+/// Serialises changes to [`SLOT`] (lookups read it without the lock) and to the kept
+/// mappings.
 static LOCK: AtomicBool = AtomicBool::new(false);
+/// Freed mappings kept for reuse: start (0: free slot) and mapped bytes, changed under [`LOCK`].
+static KEPT_AT: [AtomicUsize; KEPT_SLOTS] = [const { AtomicUsize::new(0) }; KEPT_SLOTS];
+static KEPT_LEN: [AtomicUsize; KEPT_SLOTS] = [const { AtomicUsize::new(0) }; KEPT_SLOTS];
+/// Freed mappings kept at most.
+const KEPT_SLOTS: usize = 64;
+/// Bytes of the kept mappings.
+static KEPT: AtomicUsize = AtomicUsize::new(0);
+
+/// Resident bytes of the freed mappings kept for the next large blocks: memory the process
+/// holds, but free for the run's next buffers. Pages of a kept mapping never touched are not
+/// resident and not counted.
+pub fn kept_bytes() -> u64 {
+    if KEPT.load(Ordering::Relaxed) == 0 {
+        return 0;
+    }
+    let mut kept = [(0usize, 0usize); KEPT_SLOTS];
+    lock();
+    for (k, e) in kept.iter_mut().enumerate() {
+        *e = (
+            KEPT_AT[k].load(Ordering::Relaxed),
+            KEPT_LEN[k].load(Ordering::Relaxed),
+        );
+    }
+    unlock();
+    // A mapping another thread takes meanwhile may still be counted here: a probe of the
+    // moment, like the resident size it is subtracted from.
+    kept.iter()
+        .filter(|e| e.0 != 0)
+        .map(|&(a, l)| os::resident(a, l))
+        .sum()
+}
+
+/// Keeps the freed mapping at `addr` of `len` mapped bytes, joined to the kept ones it
+/// borders (the pieces of one split mapping, freed at different times, become one again);
+/// false when the table is full.
+fn keep(mut addr: usize, mut len: usize) -> bool {
+    lock();
+    for k in 0..KEPT_SLOTS {
+        let (a, l) = (
+            KEPT_AT[k].load(Ordering::Relaxed),
+            KEPT_LEN[k].load(Ordering::Relaxed),
+        );
+        if a != 0 && (a + l == addr || addr + len == a) {
+            take_kept(k);
+            (addr, len) = (addr.min(a), len + l);
+        }
+    }
+    let slot = KEPT_AT.iter().position(|s| s.load(Ordering::Relaxed) == 0);
+    if let Some(k) = slot {
+        KEPT_AT[k].store(addr, Ordering::Relaxed);
+        KEPT_LEN[k].store(len, Ordering::Relaxed);
+        KEPT.fetch_add(len, Ordering::Relaxed);
+    }
+    unlock();
+    slot.is_some()
+}
+
+/// Takes kept mapping `k` out of the table (under the lock): its start and mapped bytes.
+fn take_kept(k: usize) -> (usize, usize) {
+    let (at, len) = (
+        KEPT_AT[k].load(Ordering::Relaxed),
+        KEPT_LEN[k].load(Ordering::Relaxed),
+    );
+    KEPT_AT[k].store(0, Ordering::Relaxed);
+    KEPT.fetch_sub(len, Ordering::Relaxed);
+    (at, len)
+}
+
+/// A kept mapping made into a tracked block of `size` bytes, and how many of its first bytes
+/// may not be zero: the head of the smallest kept mapping that holds the block (the rest
+/// stays kept), else the largest, grown (and as many bytes of the other kept mappings
+/// returned, so that the process holds no more than it would have without them). `None`
+/// when none is kept or the system refuses.
+fn reuse(size: usize) -> Option<(*mut u8, usize)> {
+    let need = mapped_len(size);
+    lock();
+    let mut pick: Option<(usize, usize)> = None;
+    for (k, at) in KEPT_AT.iter().enumerate() {
+        if at.load(Ordering::Relaxed) == 0 {
+            continue;
+        }
+        let len = KEPT_LEN[k].load(Ordering::Relaxed);
+        let better = pick.is_none_or(|(_, best)| {
+            if best >= need {
+                len >= need && len < best
+            } else {
+                len > best
+            }
+        });
+        if better {
+            pick = Some((k, len));
+        }
+    }
+    let Some((k, _)) = pick else {
+        unlock();
+        return None;
+    };
+    let (at, len) = (
+        KEPT_AT[k].load(Ordering::Relaxed),
+        KEPT_LEN[k].load(Ordering::Relaxed),
+    );
+    if len > need {
+        // The rest stays kept (a mapping can be unmapped or moved piecewise at page
+        // boundaries): a small block does not cost a large one's pages.
+        KEPT_AT[k].store(at + need, Ordering::Relaxed);
+        KEPT_LEN[k].store(len - need, Ordering::Relaxed);
+        KEPT.fetch_sub(need, Ordering::Relaxed);
+        unlock();
+        if !track(at) {
+            os::unmap(at as *mut u8, need);
+            return None;
+        }
+        return Some((at as *mut u8, size));
+    }
+    take_kept(k);
+    // The growth is returned from the tails of the other kept mappings (all lengths are
+    // whole huge pages).
+    let mut surplus = need.saturating_sub(len);
+    let mut spare = [(0usize, 0usize); KEPT_SLOTS];
+    for (j, s) in spare.iter_mut().enumerate() {
+        let (a, l) = (
+            KEPT_AT[j].load(Ordering::Relaxed),
+            KEPT_LEN[j].load(Ordering::Relaxed),
+        );
+        if surplus == 0 {
+            break;
+        }
+        if a == 0 {
+            continue;
+        }
+        let cut = surplus.min(l);
+        if cut == l {
+            *s = take_kept(j);
+        } else {
+            KEPT_LEN[j].store(l - cut, Ordering::Relaxed);
+            KEPT.fetch_sub(cut, Ordering::Relaxed);
+            *s = (a + l - cut, cut);
+        }
+        surplus -= cut;
+    }
+    unlock();
+    for &(a, l) in spare.iter().filter(|s| s.0 != 0) {
+        os::unmap(a as *mut u8, l);
+    }
+    let p = if len < need {
+        let p = os::remap(at as *mut u8, len, need);
+        if p.is_null() {
+            // Refused (joined pieces of separate mappings cannot be moved as one).
+            if !keep(at, len) {
+                os::unmap(at as *mut u8, len);
+            }
+            return None;
+        }
+        p
+    } else {
+        at as *mut u8
+    };
+    if !track(p as usize) {
+        os::unmap(p, need);
+        return None;
+    }
+    Some((p, len.min(size)))
+}
 
 fn lock() {
     while LOCK
@@ -151,6 +323,19 @@ mod os {
         // SAFETY: `ptr` is the start of a live mapping of `mapped_len(size)` bytes.
         unsafe { libc::munmap(ptr.cast(), mapped_len(size)) };
     }
+
+    /// Resident bytes of the `len` bytes at page-aligned `addr` (0 when it is not mapped).
+    pub(super) fn resident(addr: usize, len: usize) -> u64 {
+        const PAGE: usize = 4096;
+        let mut pages = vec![0u8; len.div_ceil(PAGE)];
+        // SAFETY: mincore only reads the page tables of the range and writes one byte per
+        // page into `pages`, which holds that many.
+        let r = unsafe { libc::mincore(addr as *mut libc::c_void, len, pages.as_mut_ptr()) };
+        if r != 0 {
+            return 0;
+        }
+        pages.iter().filter(|&&p| p & 1 != 0).count() as u64 * PAGE as u64
+    }
 }
 
 #[cfg(not(target_os = "linux"))]
@@ -164,16 +349,28 @@ mod os {
     }
 
     pub(super) fn unmap(_ptr: *mut u8, _size: usize) {}
+
+    pub(super) fn resident(_addr: usize, _len: usize) -> u64 {
+        0
+    }
 }
 
 impl BigAlloc {
-    /// A mapped block for `layout` when it gets one ([`wanted`]) and the system grants it.
-    fn wanted_map(layout: Layout) -> Option<*mut u8> {
+    /// A mapped block for `layout`, and how many of its first bytes are not zero: a kept
+    /// mapping when there is one, else a fresh one when the block gets one ([`wanted`]) and
+    /// the system grants it.
+    fn wanted_map(layout: Layout) -> Option<(*mut u8, usize)> {
+        if layout.size() < BIG || layout.align() > 4096 {
+            return None;
+        }
+        if let Some(r) = reuse(layout.size()) {
+            return Some(r);
+        }
         if !wanted(layout) {
             return None;
         }
         let p = Self::map(layout);
-        (!p.is_null()).then_some(p)
+        (!p.is_null()).then_some((p, 0))
     }
 
     /// A mapped block for `layout`, tracked; null when it cannot be had (the caller then asks
@@ -194,16 +391,21 @@ impl BigAlloc {
 unsafe impl GlobalAlloc for BigAlloc {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         match Self::wanted_map(layout) {
-            Some(p) => p,
+            Some((p, _)) => p,
             // SAFETY: forwarded with the caller's guarantees.
             None => unsafe { System.alloc(layout) },
         }
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        // Fresh mappings read as zero: no fill, and no page touched before it is used.
+        // Fresh pages read as zero: only a kept mapping's used part is filled, and no fresh
+        // page is touched before it is used.
         match Self::wanted_map(layout) {
-            Some(p) => p,
+            Some((p, used)) => {
+                // SAFETY: the block holds at least `layout.size() ≥ used` writable bytes.
+                unsafe { p.write_bytes(0, used) };
+                p
+            }
             // SAFETY: forwarded with the caller's guarantees.
             None => unsafe { System.alloc_zeroed(layout) },
         }
@@ -211,7 +413,10 @@ unsafe impl GlobalAlloc for BigAlloc {
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         if layout.size() >= BIG && untrack(ptr as usize) {
-            os::unmap(ptr, layout.size());
+            let len = mapped_len(layout.size());
+            if !keep(ptr as usize, len) {
+                os::unmap(ptr, len);
+            }
             return;
         }
         // SAFETY: not a mapping of ours, so the system allocated it.
@@ -256,8 +461,12 @@ unsafe impl GlobalAlloc for BigAlloc {
 mod tests {
     use super::*;
 
+    /// The tests share the tables: one at a time.
+    static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
     #[test]
     fn large_blocks_are_mapped_zeroed_moved_and_freed() {
+        let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
         let a = BigAlloc;
         let big = Layout::from_size_align(BIG + 12_345, 64).unwrap();
         unsafe {
@@ -294,5 +503,40 @@ mod tests {
         }
         // Every mapping was released.
         assert!(SLOT.iter().all(|s| s.load(Ordering::Relaxed) == 0));
+    }
+
+    #[test]
+    fn freed_mappings_are_taken_again_trimmed_or_grown_and_read_zero() {
+        let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+        let a = BigAlloc;
+        let lay = |n: usize| Layout::from_size_align(n, 64).unwrap();
+        unsafe {
+            let p = a.alloc(lay(3 * BIG));
+            if !SLOT.iter().any(|s| s.load(Ordering::Relaxed) == p as usize) {
+                // The run keeps freed memory (set by another test): the system's block.
+                a.dealloc(p, lay(3 * BIG));
+                return;
+            }
+            p.write_bytes(9, 3 * BIG);
+            a.dealloc(p, lay(3 * BIG));
+            assert!(kept_bytes() >= (3 * BIG) as u64);
+            // Smaller: the same pages, trimmed, filled with zeros.
+            let q = a.alloc_zeroed(lay(BIG + 1));
+            assert!(std::slice::from_raw_parts(q, BIG + 1)
+                .iter()
+                .all(|&b| b == 0));
+            q.write_bytes(5, BIG + 1);
+            a.dealloc(q, lay(BIG + 1));
+            // Larger: grown, old bytes zeroed, new ones zero.
+            let r = a.alloc_zeroed(lay(5 * BIG));
+            assert!(std::slice::from_raw_parts(r, 5 * BIG)
+                .iter()
+                .all(|&b| b == 0));
+            a.dealloc(r, lay(5 * BIG));
+            // Without zeroing, a kept block keeps what it held but is whole and writable.
+            let t = a.alloc(lay(4 * BIG));
+            t.write_bytes(1, 4 * BIG);
+            a.dealloc(t, lay(4 * BIG));
+        }
     }
 }

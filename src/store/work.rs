@@ -65,6 +65,14 @@ pub struct WorkDirStore {
 }
 
 /// The file of a scan's summary.
+/// Resident memory in use (bytes): the process's, less the freed mappings the allocator keeps
+/// for the next buffers (after the freed memory it does not keep is handed back).
+fn in_use() -> u64 {
+    crate::sys::return_freed_memory();
+    let rss = crate::sys::current_rss().unwrap_or(0);
+    rss.saturating_sub(crate::bigalloc::kept_bytes())
+}
+
 fn summary_path(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("{key}.summary.json"))
 }
@@ -149,8 +157,7 @@ impl WorkDirStore {
             // thread stacks, the allocator's own pages), so the view is also kept only when
             // the resident memory measured now, this view included, leaves one more step's
             // room in the budget.
-            crate::sys::return_freed_memory();
-            let held = crate::sys::current_rss().unwrap_or(0);
+            let held = in_use();
             let step = self.setup.budget.saturating_sub(self.setup.keep_room);
             if self.kept_bytes + b <= self.setup.keep_room && held + step <= self.setup.budget {
                 self.kept_bytes += b;
@@ -316,8 +323,7 @@ struct MapCache {
 impl MapCache {
     /// Measures what the process holds beside the cache.
     fn measure(&mut self) {
-        crate::sys::return_freed_memory();
-        self.outside = crate::sys::current_rss().map_or(0, |r| r.saturating_sub(self.used));
+        self.outside = in_use().saturating_sub(self.used);
     }
 
     /// Position of the next request for `k` after the current one (`usize::MAX`: never).
