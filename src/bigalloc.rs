@@ -12,9 +12,10 @@
 //! Even on huge pages the kernel zeroes every fresh page, and a run maps several times its
 //! peak memory over its scans (each scan allocates the same buffers again): on a virtual
 //! machine, where the host may have to back each page anew, that zeroing took a quarter of a
-//! survey run's cycles. So a freed mapping is kept and the next large block takes it (trimmed,
-//! or grown in place by the kernel), never adding to what the process would hold without the
-//! keeping: a block that grows a kept mapping returns as many bytes of the other kept ones.
+//! survey run's cycles. So a freed mapping is kept and the next large block takes it (its
+//! head, the rest staying kept, or the whole grown by the kernel), never adding to what the
+//! process would hold without the keeping: a block that grows a kept mapping returns as many
+//! bytes of the other kept ones.
 //! [`kept_bytes`] tells the memory probes how much of the resident memory is kept this way.
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -501,12 +502,12 @@ mod tests {
             assert_eq!(std::slice::from_raw_parts(q, 100), &[7u8; 100][..]);
             a.dealloc(q, Layout::from_size_align(2 * BIG, 8).unwrap());
         }
-        // Every mapping was released.
+        // No block is still tracked (freed mappings may be kept).
         assert!(SLOT.iter().all(|s| s.load(Ordering::Relaxed) == 0));
     }
 
     #[test]
-    fn freed_mappings_are_taken_again_trimmed_or_grown_and_read_zero() {
+    fn freed_mappings_are_taken_again_split_or_grown_and_read_zero() {
         let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
         let a = BigAlloc;
         let lay = |n: usize| Layout::from_size_align(n, 64).unwrap();
@@ -520,7 +521,7 @@ mod tests {
             p.write_bytes(9, 3 * BIG);
             a.dealloc(p, lay(3 * BIG));
             assert!(kept_bytes() >= (3 * BIG) as u64);
-            // Smaller: the same pages, trimmed, filled with zeros.
+            // Smaller: the head of a kept mapping, filled with zeros.
             let q = a.alloc_zeroed(lay(BIG + 1));
             assert!(std::slice::from_raw_parts(q, BIG + 1)
                 .iter()
