@@ -55,10 +55,7 @@ pub fn kept_bytes() -> u64 {
     let mut kept = [(0usize, 0usize); KEPT_SLOTS];
     lock();
     for (k, e) in kept.iter_mut().enumerate() {
-        *e = (
-            KEPT_AT[k].load(Ordering::Relaxed),
-            KEPT_LEN[k].load(Ordering::Relaxed),
-        );
+        *e = kept_entry(k);
     }
     unlock();
     // A mapping another thread takes meanwhile may still be counted here: a probe of the
@@ -75,10 +72,7 @@ pub fn kept_bytes() -> u64 {
 fn keep(mut addr: usize, mut len: usize) -> bool {
     lock();
     for k in 0..KEPT_SLOTS {
-        let (a, l) = (
-            KEPT_AT[k].load(Ordering::Relaxed),
-            KEPT_LEN[k].load(Ordering::Relaxed),
-        );
+        let (a, l) = kept_entry(k);
         if a != 0 && (a + l == addr || addr + len == a) {
             take_kept(k);
             (addr, len) = (addr.min(a), len + l);
@@ -94,12 +88,17 @@ fn keep(mut addr: usize, mut len: usize) -> bool {
     slot.is_some()
 }
 
-/// Takes kept mapping `k` out of the table (under the lock): its start and mapped bytes.
-fn take_kept(k: usize) -> (usize, usize) {
-    let (at, len) = (
+/// Kept mapping `k` (under the lock): its start (0: none) and mapped bytes.
+fn kept_entry(k: usize) -> (usize, usize) {
+    (
         KEPT_AT[k].load(Ordering::Relaxed),
         KEPT_LEN[k].load(Ordering::Relaxed),
-    );
+    )
+}
+
+/// Takes kept mapping `k` out of the table (under the lock): its start and mapped bytes.
+fn take_kept(k: usize) -> (usize, usize) {
+    let (at, len) = kept_entry(k);
     KEPT_AT[k].store(0, Ordering::Relaxed);
     KEPT.fetch_sub(len, Ordering::Relaxed);
     (at, len)
@@ -114,11 +113,11 @@ fn reuse(size: usize) -> Option<(*mut u8, usize)> {
     let need = mapped_len(size);
     lock();
     let mut pick: Option<(usize, usize)> = None;
-    for (k, at) in KEPT_AT.iter().enumerate() {
-        if at.load(Ordering::Relaxed) == 0 {
+    for k in 0..KEPT_SLOTS {
+        let (at, len) = kept_entry(k);
+        if at == 0 {
             continue;
         }
-        let len = KEPT_LEN[k].load(Ordering::Relaxed);
         let better = pick.is_none_or(|(_, best)| {
             if best >= need {
                 len >= need && len < best
@@ -130,14 +129,11 @@ fn reuse(size: usize) -> Option<(*mut u8, usize)> {
             pick = Some((k, len));
         }
     }
-    let Some((k, _)) = pick else {
+    let Some((k, len)) = pick else {
         unlock();
         return None;
     };
-    let (at, len) = (
-        KEPT_AT[k].load(Ordering::Relaxed),
-        KEPT_LEN[k].load(Ordering::Relaxed),
-    );
+    let at = KEPT_AT[k].load(Ordering::Relaxed);
     if len > need {
         // The rest stays kept (a mapping can be unmapped or moved piecewise at page
         // boundaries): a small block does not cost a large one's pages.
@@ -157,10 +153,7 @@ fn reuse(size: usize) -> Option<(*mut u8, usize)> {
     let mut surplus = need.saturating_sub(len);
     let mut spare = [(0usize, 0usize); KEPT_SLOTS];
     for (j, s) in spare.iter_mut().enumerate() {
-        let (a, l) = (
-            KEPT_AT[j].load(Ordering::Relaxed),
-            KEPT_LEN[j].load(Ordering::Relaxed),
-        );
+        let (a, l) = kept_entry(j);
         if surplus == 0 {
             break;
         }

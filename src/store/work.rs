@@ -64,7 +64,6 @@ pub struct WorkDirStore {
     ahead: Option<(usize, JoinHandle<Result<Points>>)>,
 }
 
-/// The file of a scan's summary.
 /// Resident memory in use (bytes): the process's, less the freed mappings the allocator keeps
 /// for the next buffers (after the freed memory it does not keep is handed back).
 fn in_use() -> u64 {
@@ -73,6 +72,7 @@ fn in_use() -> u64 {
     rss.saturating_sub(crate::bigalloc::kept_bytes())
 }
 
+/// The file of a scan's summary.
 fn summary_path(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("{key}.summary.json"))
 }

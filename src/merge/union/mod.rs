@@ -347,23 +347,18 @@ impl Bounds {
             }
             // Local box of the stored points, each widened by twice its radius (a crossing
             // is accepted within its radius of the stored depth), and their largest depth.
+            let empty = || (Vec3::INFINITY, Vec3::NEG_INFINITY, 0.0f32);
             let (lo, hi, deep) = l
                 .maps
                 .near
                 .par_iter()
                 .filter(|q| q.w != f32::NEG_INFINITY)
-                .fold(
-                    || (Vec3::INFINITY, Vec3::NEG_INFINITY, 0.0f32),
-                    |(lo, hi, d), q| {
-                        let p = q.truncate();
-                        let w = Vec3::splat(2.0 * q.w.max(0.0));
-                        (lo.min(p - w), hi.max(p + w), d.max(l.depth(p)))
-                    },
-                )
-                .reduce(
-                    || (Vec3::INFINITY, Vec3::NEG_INFINITY, 0.0f32),
-                    |a, b| (a.0.min(b.0), a.1.max(b.1), a.2.max(b.2)),
-                );
+                .fold(empty, |(lo, hi, d), q| {
+                    let p = q.truncate();
+                    let w = Vec3::splat(2.0 * q.w.max(0.0));
+                    (lo.min(p - w), hi.max(p + w), d.max(l.depth(p)))
+                })
+                .reduce(empty, |a, b| (a.0.min(b.0), a.1.max(b.1), a.2.max(b.2)));
             if lo.x > hi.x {
                 continue; // nothing stored
             }
