@@ -5,6 +5,7 @@
 //! ```text
 //! cargo run --release --example reference_explain -- SCENE [key=value ...]
 //!   keys: width=180 height=90 model=equirect|perspective tmax=inf rays=64 worst=200 scan=-1
+//!         region=X0,X1,Y0,Y1,Z0,Z1 (only points inside, world coordinates)
 //! ```
 
 use mvao::io::dataset::{Dataset, PlaceOptions};
@@ -170,6 +171,16 @@ fn main() -> anyhow::Result<()> {
             for i in 0..pts.len() {
                 errs.push(((a[i] - t[i]).abs(), i));
             }
+        }
+        if let Some(q) = kv.get("region") {
+            // Only points whose world position lies in `x0,x1,y0,y1,z0,z1`.
+            let b: Vec<f64> = q.split(',').map(|x| x.parse().unwrap_or(0.0)).collect();
+            errs.retain(|&(_, i)| {
+                let w = frame.transform_point3(pts[i].as_dvec3());
+                (b[0]..=b[1]).contains(&w.x)
+                    && (b[2]..=b[3]).contains(&w.y)
+                    && (b[4]..=b[5]).contains(&w.z)
+            });
         }
         errs.sort_by(|x, y| y.0.total_cmp(&x.0));
         for &(_, i) in errs.iter().take(worst) {

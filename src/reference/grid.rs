@@ -41,6 +41,9 @@ pub const EDGE_OFF_PLANE: f32 = 0.3;
 /// boundary; a smaller one on every point leaves gaps between the cells of closed walls.
 pub const BORDER_RADIUS_FACTOR: f32 = 0.5;
 
+/// Smallest cosine of the incidence counted in a pixel's footprint on its surface.
+pub const MIN_INCIDENCE_COS: f32 = 0.05;
+
 /// Where a scan's sensor looks from, for the line-of-sight test of [`MIN_VIEW_ANGLE_DEG`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum View {
@@ -115,6 +118,49 @@ impl<'a> Cells<'a> {
     /// Length of the edge from (r, c) to (r + dr, c + dc), if both cells are occupied.
     fn len(&self, r: isize, c: isize, dr: isize, dc: isize) -> Option<f32> {
         Some(self.get(r, c)?.distance(self.get(r + dr, c + dc)?))
+    }
+
+    /// The lateral distance at `p` between its ray and the ray of the point at `q`: the
+    /// sensor's angular step times the range (its metric step for parallel rays).
+    fn pitch(&self, p: Vec3, q: Vec3) -> f32 {
+        match self.view {
+            View::Origin => {
+                let (a, b) = (p.normalize_or_zero(), q.normalize_or_zero());
+                p.length() * (a - b).length()
+            }
+            View::Parallel(d) => {
+                let (d, e) = (d.normalize_or_zero(), q - p);
+                (e - d * e.dot(d)).length()
+            }
+        }
+    }
+
+    /// Half the diagonal of a square as large as the footprint of the pixel of the point at
+    /// `(r, c)` on its surface (normal `n`): the footprint's area is the row and column
+    /// pitches at its range over the cosine of its incidence (held above
+    /// [`MIN_INCIDENCE_COS`]); either pitch stands for both when the other has no neighbour.
+    /// `None` without any neighbour.
+    fn footprint(&self, r: isize, c: isize, n: Vec3) -> Option<f32> {
+        let p = self.get(r, c)?;
+        let axis = |dr: isize, dc: isize| {
+            [(dr, dc), (-dr, -dc)]
+                .into_iter()
+                .filter_map(|(a, b)| self.get(r + a, c + b))
+                .map(|q| self.pitch(p, q))
+                .reduce(f32::min)
+        };
+        let (a, b) = match (axis(1, 0), axis(0, 1)) {
+            (Some(a), Some(b)) => (a, b),
+            (Some(a), None) | (None, Some(a)) => (a, a),
+            (None, None) => return None,
+        };
+        let los = match self.view {
+            View::Origin => p.normalize_or_zero(),
+            View::Parallel(d) => d.normalize_or_zero(),
+        };
+        let cos = n.dot(los).abs().max(MIN_INCIDENCE_COS);
+        let r = (0.5 * a * b / cos).sqrt();
+        (r > 0.0 && r.is_finite()).then_some(r)
     }
 
     /// Is the edge from `a` to `b` within [`MIN_VIEW_ANGLE_DEG`] of the line of sight?
@@ -256,6 +302,9 @@ pub fn grid_radii(
                 .normalize_or_zero();
             let mut longest = 0.0f32;
             let mut kept = 0;
+            // Edges the triangulation keeps (towards a neighbour on this surface or across a
+            // crease), as against a depth jump, an empty cell or the map's edge.
+            let mut joined = 0;
             let mut any = 0.0f32;
             for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
                 // keep() reads an edge from its upper-left end.
@@ -265,6 +314,7 @@ pub fn grid_radii(
                     (r, c)
                 };
                 if g.idx(r, c) == i as u32 && g.keep(sr, sc, dr.abs(), dc.abs()) {
+                    joined += 1;
                     if let (Some(a), Some(b)) = (g.get(r, c), g.get(r + dr, c + dc)) {
                         let e = b - a;
                         any = any.max((e - n * e.dot(n)).length());
@@ -277,6 +327,14 @@ pub fn grid_radii(
                 }
             }
             let f = fallback.get(i).copied().unwrap_or(0.0);
+            // On a silhouette or beside a hole the disk may not reach past the corners of its
+            // own pixel's footprint: beyond them lies what the neighbouring pixel saw instead.
+            // Across a crease the other surface closes the gap, and a smaller disk would open
+            // one into the corner.
+            let held = |x: f32| match (joined < 4).then(|| g.footprint(r, c, n)).flatten() {
+                Some(cell) => x.min(cell),
+                None => x,
+            };
             // Where no edge lies in the tangent plane (a normal estimated from noisy points
             // can be tens of degrees off), rad(p) would swell a thin structure's disk to
             // several times its width: it is held to the boundary size of the kept edges.
@@ -291,9 +349,9 @@ pub fn grid_radii(
                 } else {
                     BORDER_RADIUS_FACTOR
                 };
-                f * longest
+                held(f * longest)
             } else {
-                f
+                held(f)
             }
         })
         .collect())
@@ -419,6 +477,69 @@ mod tests {
         // Without normals every kept edge counts: an inside point.
         let r = grid_radii(&p, &g, View::Origin, &[], &rad).unwrap();
         assert!(r[mid] > want * 1.2, "{}", r[mid]);
+    }
+
+    /// A floor seen at grazing incidence whose far row ends at the sky or at a wall.
+    fn grazing_floor(wall: bool) -> (Vec<Vec3>, Grid, Vec<Vec3>) {
+        let (p, g) = grid_of(14, 11, |r, c| {
+            // Rows 0..4 look 6°..9° down (the wall, or sky), rows 4.. 10°..19° (the floor).
+            let (el, az) = ((6.0 + r as f32).to_radians(), (c as f32 - 5.0).to_radians());
+            let d = Vec3::new(az.sin() * el.cos(), -el.sin(), -az.cos() * el.cos());
+            if r >= 4 {
+                Some(d / el.sin())
+            } else {
+                wall.then(|| d * (5.95 / -d.z))
+            }
+        });
+        let floor = |q: &Vec3| (q.y + 1.0).abs() < 1e-4;
+        let normals = p
+            .iter()
+            .map(|q| if floor(q) { Vec3::Y } else { Vec3::Z })
+            .collect();
+        (p, g, normals)
+    }
+
+    #[test]
+    fn boundary_disks_stay_within_their_pixel_but_creases_keep_theirs() {
+        let cell = |p: &[Vec3], g: &Grid, r: u32, c: u32| {
+            (0..p.len())
+                .find(|&i| g.row[i] == r && g.col[i] == c)
+                .unwrap()
+        };
+        let (p, g, normals) = grazing_floor(false);
+        let rad = vec![9.0f32; p.len()];
+        let radii = grid_radii(&p, &g, View::Origin, &normals, &rad).unwrap();
+        // The far row's cells are 0.1 m wide and 0.53 m deep: half their depth would reach
+        // 0.26 m past the floor's last sample into the sky; their square of equal area has a
+        // half-diagonal of 0.17 m.
+        let far = cell(&p, &g, 4, 5);
+        let depth = p[far].distance(p[cell(&p, &g, 5, 5)]);
+        let (pitch, cos) = (
+            p[far].length() * 1f32.to_radians(),
+            10f32.to_radians().sin(),
+        );
+        let square = (0.5 * pitch * pitch / cos).sqrt();
+        assert!(
+            square < 0.7 * BORDER_RADIUS_FACTOR * depth,
+            "{square} {depth}"
+        );
+        assert!(
+            (radii[far] - square).abs() < 0.02 * square,
+            "{} {square}",
+            radii[far]
+        );
+        // Inside the floor the covering disk is unchanged.
+        let inside = cell(&p, &g, 8, 5);
+        let longest = p[inside].distance(p[cell(&p, &g, 7, 5)]);
+        assert!((radii[inside] - GRID_RADIUS_FACTOR * longest).abs() < 1e-4);
+        // Where a wall stands 0.28 m behind the far row the floor runs on to it: joined on
+        // every side, the disk is not held to its pixel.
+        let (p, g, normals) = grazing_floor(true);
+        let radii = grid_radii(&p, &g, View::Origin, &normals, &rad).unwrap();
+        let far = cell(&p, &g, 4, 5);
+        let want = GRID_RADIUS_FACTOR * p[far].distance(p[cell(&p, &g, 5, 5)]);
+        assert!(want > 2.0 * square);
+        assert!((radii[far] - want).abs() < 1e-4, "{} {want}", radii[far]);
     }
 
     #[test]
