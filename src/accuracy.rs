@@ -16,6 +16,7 @@ use crate::reference::{self, Convergence, RefParams, Scene};
 pub use crate::report::{Accuracy, ScanAccuracy};
 use crate::scan::Scan;
 use crate::sensor::{self, ProjectionChoice};
+use glam::Vec3;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -95,14 +96,18 @@ pub struct RefReport {
 }
 
 /// Triangles of scan `s` from its PLY faces (fans over polygons, indices remapped to the
-/// valid points), else from its native grid; `None` when it has neither.
-fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
-    let Container::Ply(ply) = container else {
-        return s
-            .grid
+/// valid points), else from its native grid, with whether they came from the grid; `None`
+/// when it has neither.
+fn mesh_of(s: &Scan, container: &Container) -> Result<Option<(Vec<[u32; 3]>, bool)>> {
+    let grid = || {
+        s.grid
             .as_ref()
             .map(|g| reference::triangulate_grid_seen(&s.points, g, reference::scan_view(s)))
-            .transpose();
+            .transpose()
+            .map(|t| t.map(|t| (t, true)))
+    };
+    let Container::Ply(ply) = container else {
+        return grid();
     };
     if let Some(faces) = ply.list_column("face", "vertex_indices") {
         let mut remap = vec![u32::MAX; s.vertex_count];
@@ -122,12 +127,23 @@ fn mesh_of(s: &Scan, container: &Container) -> Result<Option<Vec<[u32; 3]>>> {
                 tris.push([idx[0], idx[k], idx[k + 1]]);
             }
         }
-        return Ok(Some(tris));
+        return Ok(Some((tris, false)));
     }
-    s.grid
-        .as_ref()
-        .map(|g| reference::triangulate_grid_seen(&s.points, g, reference::scan_view(s)))
-        .transpose()
+    grid()
+}
+
+/// Adds the disks that close the silhouettes of scan `s`'s grid triangulation
+/// ([`reference::grid_skirts`]).
+fn add_skirts(b: &mut reference::SceneBuilder, s: &Scan, normals: &[Vec3]) -> Result<()> {
+    let Some(g) = &s.grid else {
+        return Ok(());
+    };
+    let skirt = reference::grid_skirts(&s.points, g, reference::scan_view(s), normals)?;
+    let edge: Vec<usize> = (0..skirt.len()).filter(|&i| skirt[i] > 0.0).collect();
+    let pick = |v: &[Vec3]| edge.iter().map(|&i| v[i]).collect::<Vec<_>>();
+    let radii: Vec<f32> = edge.iter().map(|&i| skirt[i]).collect();
+    b.add_surfels(&s.name, s.pose, &pick(&s.points), &pick(normals), &radii)?;
+    Ok(())
 }
 
 /// `mvao reference`: the reference obscurance of every point of every scan, cast against all
@@ -161,8 +177,11 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
             Geometry::Mesh => mesh_of(s, &ds.files[ds.origin[i].0].container)?,
         };
         match &mesh {
-            Some(t) if !t.is_empty() => {
+            Some((t, from_grid)) if !t.is_empty() => {
                 b.add_triangles(&s.name, s.pose, &s.points, t)?;
+                if *from_grid {
+                    add_skirts(&mut b, s, &normals)?;
+                }
             }
             _ => {
                 b.add_surfels(&s.name, s.pose, &s.points, &normals, &radii)?;

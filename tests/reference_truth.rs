@@ -145,7 +145,10 @@ fn vault_references_match_the_exact_mesh() {
         dir.path(),
         &Case::new(MeshKind::Vault, f32::INFINITY, Geometry::Mesh),
     );
-    assert_close(&m, 0.02, 0.025, 0.99, "vault mesh inf");
+    // Grid triangles stop at a silhouette's last sample: without the disks that close it
+    // the mesh read e_A 0.0152 with bias +0.0142 here.
+    assert_close(&m, 0.014, 0.015, 0.99, "vault mesh inf");
+    assert!(m.bias.abs() <= 0.006, "vault mesh inf: {}", m.one_line());
 }
 
 /// The arcade of thin columns and arches under open sky at t_max = 0.4 m: before the grid

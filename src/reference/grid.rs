@@ -357,6 +357,44 @@ pub fn grid_radii(
         .collect())
 }
 
+/// Radii of the disks that close a grid triangulation's silhouettes: a point on a boundary
+/// of [`triangulate_grid_seen`] (one of its four grid edges not kept) gets a disk of half
+/// its pixel's pitch on its surface (the triangles stop at the last sample, the surface
+/// goes on for half a pixel on average); 0 elsewhere.
+pub fn grid_skirts(points: &[Vec3], grid: &Grid, view: View, normals: &[Vec3]) -> Result<Vec<f32>> {
+    let g = Cells::new(points, grid, view)?;
+    Ok((0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            let (r, c) = (grid.row[i] as isize, grid.col[i] as isize);
+            if g.idx(r, c) != i as u32 {
+                return 0.0;
+            }
+            let joined = [(0, 1), (1, 0), (0, -1), (-1, 0)]
+                .into_iter()
+                .filter(|&(dr, dc)| {
+                    let (sr, sc) = if dr + dc < 0 {
+                        (r + dr, c + dc)
+                    } else {
+                        (r, c)
+                    };
+                    g.keep(sr, sc, dr.abs(), dc.abs())
+                })
+                .count();
+            if joined == 4 {
+                return 0.0;
+            }
+            let n = normals
+                .get(i)
+                .copied()
+                .unwrap_or(Vec3::ZERO)
+                .normalize_or_zero();
+            // The footprint's half-diagonal is sqrt(area / 2); half its pitch sqrt(area) / 2.
+            g.footprint(r, c, n).map_or(0.0, |h| h / 2f32.sqrt())
+        })
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -540,6 +578,35 @@ mod tests {
         let want = GRID_RADIUS_FACTOR * p[far].distance(p[cell(&p, &g, 5, 5)]);
         assert!(want > 2.0 * square);
         assert!((radii[far] - want).abs() < 1e-4, "{} {want}", radii[far]);
+    }
+
+    #[test]
+    fn skirts_close_silhouettes_only() {
+        let cell = |p: &[Vec3], g: &Grid, r: u32, c: u32| {
+            (0..p.len())
+                .find(|&i| g.row[i] == r && g.col[i] == c)
+                .unwrap()
+        };
+        let (p, g, normals) = grazing_floor(false);
+        let skirt = grid_skirts(&p, &g, View::Origin, &normals).unwrap();
+        // The far row ends at the sky: half its pixel's pitch on the floor, the square root
+        // of the footprint's area over two.
+        let far = cell(&p, &g, 4, 5);
+        let (pitch, cos) = (
+            p[far].length() * 1f32.to_radians(),
+            10f32.to_radians().sin(),
+        );
+        let half = 0.5 * (pitch * pitch / cos).sqrt();
+        assert!(
+            (skirt[far] - half).abs() < 0.02 * half,
+            "{} {half}",
+            skirt[far]
+        );
+        assert_eq!(skirt[cell(&p, &g, 8, 5)], 0.0);
+        // A wall behind the far row joins it: no skirt.
+        let (p, g, normals) = grazing_floor(true);
+        let skirt = grid_skirts(&p, &g, View::Origin, &normals).unwrap();
+        assert_eq!(skirt[cell(&p, &g, 4, 5)], 0.0);
     }
 
     #[test]

@@ -79,7 +79,7 @@ mod wide;
 
 pub use explain::{RayAccount, RayStop};
 pub use grid::{
-    grid_radii, triangulate_grid, triangulate_grid_seen, View, BORDER_RADIUS_FACTOR,
+    grid_radii, grid_skirts, triangulate_grid, triangulate_grid_seen, View, BORDER_RADIUS_FACTOR,
     EDGE_OFF_PLANE, EDGE_RATIO, GRID_RADIUS_FACTOR, MIN_VIEW_ANGLE_DEG,
 };
 
