@@ -96,13 +96,18 @@ pub struct RefReport {
 }
 
 /// Triangles of scan `s` from its PLY faces (fans over polygons, indices remapped to the
-/// valid points), else from its native grid, with whether they came from the grid; `None`
-/// when it has neither.
-fn mesh_of(s: &Scan, container: &Container) -> Result<Option<(Vec<[u32; 3]>, bool)>> {
+/// valid points), else from its native grid cut at creases of `normals`, with whether they
+/// came from the grid; `None` when it has neither.
+fn mesh_of(
+    s: &Scan,
+    container: &Container,
+    normals: &[Vec3],
+) -> Result<Option<(Vec<[u32; 3]>, bool)>> {
+    let view = reference::scan_view(s);
     let grid = || {
         s.grid
             .as_ref()
-            .map(|g| reference::triangulate_grid_seen(&s.points, g, reference::scan_view(s)))
+            .map(|g| reference::triangulate_grid_creased(&s.points, g, view, normals))
             .transpose()
             .map(|t| t.map(|t| (t, true)))
     };
@@ -174,7 +179,7 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         let radii = reference::surfel_radii(s, &normals, &radii)?;
         let mesh = match cfg.geometry {
             Geometry::Surfels => None,
-            Geometry::Mesh => mesh_of(s, &ds.files[ds.origin[i].0].container)?,
+            Geometry::Mesh => mesh_of(s, &ds.files[ds.origin[i].0].container, &normals)?,
         };
         match &mesh {
             Some((t, from_grid)) if !t.is_empty() => {

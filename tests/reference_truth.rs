@@ -140,7 +140,9 @@ fn vault_references_match_the_exact_mesh() {
     );
     assert_close(&m, 0.015, 0.015, 0.99, "vault surfels inf");
     let (m, _, _) = score(dir.path(), &Case::new(MeshKind::Vault, 0.4, Geometry::Mesh));
-    assert!(m.e_a <= 0.01, "vault mesh 0.4: {}", m.one_line());
+    // Grid triangles across the hall's creases (floor to wall, wall to vault) stood in front
+    // of both faces: before they were cut this read shaded e_A 0.139, Pearson r 0.925.
+    assert_close(&m, 0.01, 0.05, 0.95, "vault mesh 0.4");
     let (m, _, _) = score(
         dir.path(),
         &Case::new(MeshKind::Vault, f32::INFINITY, Geometry::Mesh),

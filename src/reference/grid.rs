@@ -41,6 +41,11 @@ pub const EDGE_OFF_PLANE: f32 = 0.3;
 /// boundary; a smaller one on every point leaves gaps between the cells of closed walls.
 pub const BORDER_RADIUS_FACTOR: f32 = 0.5;
 
+/// Largest angle (degrees) between the normals of a kept edge's ends in a triangulation with
+/// normals ([`triangulate_grid_creased`]): the own-patch rule's 60°, beyond which a surface
+/// is another.
+pub const CREASE_DEG: f32 = 60.0;
+
 /// Smallest cosine of the incidence counted in a pixel's footprint on its surface.
 pub const MIN_INCIDENCE_COS: f32 = 0.05;
 
@@ -67,6 +72,8 @@ struct Cells<'a> {
     cols: usize,
     cos_view: f32,
     view: View,
+    /// Unit normals per point for the crease rule of [`Cells::keep`]; empty: no rule.
+    normals: &'a [Vec3],
 }
 
 impl<'a> Cells<'a> {
@@ -100,6 +107,7 @@ impl<'a> Cells<'a> {
             cols,
             cos_view: MIN_VIEW_ANGLE_DEG.to_radians().cos(),
             view,
+            normals: &[],
         })
     }
 
@@ -173,8 +181,26 @@ impl<'a> Cells<'a> {
         e.dot(v).abs() > self.cos_view
     }
 
+    /// With normals, do the ends of the edge (r, c) → (r + dr, c + dc) face more than
+    /// [`CREASE_DEG`] apart?
+    fn crease(&self, r: isize, c: isize, dr: isize, dc: isize) -> bool {
+        let normal = |i: u32| {
+            let n = self.normals.get(i as usize).copied().unwrap_or(Vec3::ZERO);
+            n.normalize_or_zero()
+        };
+        let (na, nb) = (normal(self.idx(r, c)), normal(self.idx(r + dr, c + dc)));
+        na != Vec3::ZERO && nb != Vec3::ZERO && na.dot(nb) < CREASE_DEG.to_radians().cos()
+    }
+
     /// Is the edge (r, c) → (r + dr, c + dc) kept?
     fn keep(&self, r: isize, c: isize, dr: isize, dc: isize) -> bool {
+        self.joins(r, c, dr, dc) && !self.crease(r, c, dr, dc)
+    }
+
+    /// Is the edge (r, c) → (r + dr, c + dc) kept but for the crease rule: both cells
+    /// occupied, not along the line of sight, no longer than [`EDGE_RATIO`] times its
+    /// neighbours?
+    fn joins(&self, r: isize, c: isize, dr: isize, dc: isize) -> bool {
         let (Some(a), Some(b)) = (self.get(r, c), self.get(r + dr, c + dc)) else {
             return false;
         };
@@ -217,7 +243,24 @@ pub fn triangulate_grid(points: &[Vec3], grid: &Grid) -> Result<Vec<[u32; 3]>> {
 /// edge within [`MIN_VIEW_ANGLE_DEG`] of the line of sight of `view` is never kept.
 /// `grid.row`/`grid.col` give each point's cell; points outside the grid are left out.
 pub fn triangulate_grid_seen(points: &[Vec3], grid: &Grid, view: View) -> Result<Vec<[u32; 3]>> {
-    let g = Cells::new(points, grid, view)?;
+    triangulate_grid_creased(points, grid, view, &[])
+}
+
+/// [`triangulate_grid_seen`] with unit `normals` per point (empty: none): an edge whose ends
+/// face more than [`CREASE_DEG`] apart crosses a crease and is not kept, so no triangle cuts
+/// the corner (where two surfaces meet, a triangle from one to the other stands in front of
+/// both and stops the rays of the points beside the corner early); [`grid_skirts`] closes
+/// the corner instead.
+pub fn triangulate_grid_creased(
+    points: &[Vec3],
+    grid: &Grid,
+    view: View,
+    normals: &[Vec3],
+) -> Result<Vec<[u32; 3]>> {
+    let mut g = Cells::new(points, grid, view)?;
+    if normals.len() == points.len() {
+        g.normals = normals;
+    }
     let per_row: Vec<Vec<[u32; 3]>> = (0..g.rows.saturating_sub(1))
         .into_par_iter()
         .map(|r| {
@@ -357,12 +400,17 @@ pub fn grid_radii(
         .collect())
 }
 
-/// Radii of the disks that close a grid triangulation's silhouettes: a point on a boundary
-/// of [`triangulate_grid_seen`] (one of its four grid edges not kept) gets a disk of half
-/// its pixel's pitch on its surface (the triangles stop at the last sample, the surface
-/// goes on for half a pixel on average); 0 elsewhere.
+/// Radii of the disks that close a grid triangulation's silhouettes and creases: a point on
+/// a boundary of [`triangulate_grid_creased`] with the same `normals` (one of its four grid
+/// edges not kept) gets a disk on its surface of half its pixel's pitch (the triangles stop
+/// at the last sample, the surface goes on for half a pixel on average), and at a concave
+/// crease as far as the other surface's sample lies along its surface (up to one pitch), so
+/// that it reaches into the corner; 0 elsewhere.
 pub fn grid_skirts(points: &[Vec3], grid: &Grid, view: View, normals: &[Vec3]) -> Result<Vec<f32>> {
-    let g = Cells::new(points, grid, view)?;
+    let mut g = Cells::new(points, grid, view)?;
+    if normals.len() == points.len() {
+        g.normals = normals;
+    }
     Ok((0..points.len())
         .into_par_iter()
         .map(|i| {
@@ -370,27 +418,41 @@ pub fn grid_skirts(points: &[Vec3], grid: &Grid, view: View, normals: &[Vec3]) -
             if g.idx(r, c) != i as u32 {
                 return 0.0;
             }
-            let joined = [(0, 1), (1, 0), (0, -1), (-1, 0)]
-                .into_iter()
-                .filter(|&(dr, dc)| {
-                    let (sr, sc) = if dr + dc < 0 {
-                        (r + dr, c + dc)
-                    } else {
-                        (r, c)
-                    };
-                    g.keep(sr, sc, dr.abs(), dc.abs())
-                })
-                .count();
-            if joined == 4 {
-                return 0.0;
-            }
             let n = normals
                 .get(i)
                 .copied()
                 .unwrap_or(Vec3::ZERO)
                 .normalize_or_zero();
-            // The footprint's half-diagonal is sqrt(area / 2); half its pitch sqrt(area) / 2.
-            g.footprint(r, c, n).map_or(0.0, |h| h / 2f32.sqrt())
+            let p = points[i];
+            // Half the pitch on a silhouette (the footprint's half-diagonal is
+            // sqrt(area / 2), half its pitch sqrt(area) / 2); across a crease, as far as the
+            // other surface's sample lies along this one (to the corner, not past it).
+            let mut skirt = 0.0f32;
+            for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
+                // keep() and joins() read an edge from its upper-left end.
+                let (sr, sc) = if dr + dc < 0 {
+                    (r + dr, c + dc)
+                } else {
+                    (r, c)
+                };
+                if g.keep(sr, sc, dr.abs(), dc.abs()) {
+                    continue;
+                }
+                let half = || g.footprint(r, c, n).map_or(0.0, |h| h / 2f32.sqrt());
+                let reach = match g.get(r + dr, c + dc) {
+                    // A concave crease: the other surface's sample stands in front of this
+                    // one's plane, and a disk reaching into the corner ends in that surface.
+                    // The corner lies within the next pixel: at most a whole pitch (a longer
+                    // reach is an edge the ratio test let across a jump).
+                    Some(q) if g.joins(sr, sc, dr.abs(), dc.abs()) && (q - p).dot(n) > 0.0 => {
+                        let (e, h) = (q - p, half());
+                        (e - n * e.dot(n)).length().clamp(h, 2.0 * h)
+                    }
+                    _ => half(),
+                };
+                skirt = skirt.max(reach);
+            }
+            skirt
         })
         .collect())
 }
@@ -581,7 +643,7 @@ mod tests {
     }
 
     #[test]
-    fn skirts_close_silhouettes_only() {
+    fn skirts_close_silhouettes_and_concave_creases() {
         let cell = |p: &[Vec3], g: &Grid, r: u32, c: u32| {
             (0..p.len())
                 .find(|&i| g.row[i] == r && g.col[i] == c)
@@ -603,10 +665,28 @@ mod tests {
             skirt[far]
         );
         assert_eq!(skirt[cell(&p, &g, 8, 5)], 0.0);
-        // A wall behind the far row joins it: no skirt.
+        // A wall 0.28 m behind the far row: without normals it joins the floor (no skirt);
+        // with them the edge crosses a concave crease, is cut from the triangulation, and
+        // the floor's disk reaches to the wall's foot.
         let (p, g, normals) = grazing_floor(true);
+        let far = cell(&p, &g, 4, 5);
+        assert_eq!(grid_skirts(&p, &g, View::Origin, &[]).unwrap()[far], 0.0);
         let skirt = grid_skirts(&p, &g, View::Origin, &normals).unwrap();
-        assert_eq!(skirt[cell(&p, &g, 4, 5)], 0.0);
+        let foot = p[cell(&p, &g, 3, 5)] - p[far];
+        let reach = (foot - Vec3::Y * foot.y).length();
+        // The foot is 0.28 m away, past one pitch (0.24 m): held to the pitch.
+        assert!(reach > 2.0 * half, "{reach} {half}");
+        assert!(
+            (skirt[far] - 2.0 * half).abs() < 0.04 * half,
+            "{} {half}",
+            skirt[far]
+        );
+        let tris = triangulate_grid_creased(&p, &g, View::Origin, &normals).unwrap();
+        let wall = |i: u32| p[i as usize].y > -1.0 + 1e-4;
+        assert!(tris
+            .iter()
+            .all(|t| t.iter().all(|&i| wall(i)) || !t.iter().any(|&i| wall(i))));
+        assert!(triangulate_grid(&p, &g).unwrap().len() > tris.len());
     }
 
     #[test]

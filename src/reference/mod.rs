@@ -79,8 +79,8 @@ mod wide;
 
 pub use explain::{RayAccount, RayStop};
 pub use grid::{
-    grid_radii, grid_skirts, triangulate_grid, triangulate_grid_seen, View, BORDER_RADIUS_FACTOR,
-    EDGE_OFF_PLANE, EDGE_RATIO, GRID_RADIUS_FACTOR, MIN_VIEW_ANGLE_DEG,
+    grid_radii, grid_skirts, triangulate_grid, triangulate_grid_creased, triangulate_grid_seen,
+    View, BORDER_RADIUS_FACTOR, EDGE_OFF_PLANE, EDGE_RATIO, GRID_RADIUS_FACTOR, MIN_VIEW_ANGLE_DEG,
 };
 
 use crate::error::{Error, Result};
