@@ -192,6 +192,19 @@ impl<'a> Cells<'a> {
         na != Vec3::ZERO && nb != Vec3::ZERO && na.dot(nb) < CREASE_DEG.to_radians().cos()
     }
 
+    /// [`Cells::keep`] of the edge from `(r, c)` to its neighbour at `(r + dr, c + dc)` in
+    /// any of the four directions (the edge read from its upper-left end).
+    fn keep_at(&self, r: isize, c: isize, dr: isize, dc: isize) -> bool {
+        let (sr, sc) = upper_left(r, c, dr, dc);
+        self.keep(sr, sc, dr.abs(), dc.abs())
+    }
+
+    /// [`Cells::joins`] like [`Cells::keep_at`].
+    fn joins_at(&self, r: isize, c: isize, dr: isize, dc: isize) -> bool {
+        let (sr, sc) = upper_left(r, c, dr, dc);
+        self.joins(sr, sc, dr.abs(), dc.abs())
+    }
+
     /// Is the edge (r, c) → (r + dr, c + dc) kept?
     fn keep(&self, r: isize, c: isize, dr: isize, dc: isize) -> bool {
         self.joins(r, c, dr, dc) && !self.crease(r, c, dr, dc)
@@ -230,6 +243,15 @@ impl<'a> Cells<'a> {
             }
         }
         reference == f32::INFINITY || l <= EDGE_RATIO * reference
+    }
+}
+
+/// The upper-left end of the edge from `(r, c)` to `(r + dr, c + dc)`.
+fn upper_left(r: isize, c: isize, dr: isize, dc: isize) -> (isize, isize) {
+    if dr + dc < 0 {
+        (r + dr, c + dc)
+    } else {
+        (r, c)
     }
 }
 
@@ -350,13 +372,7 @@ pub fn grid_radii(
             let mut joined = 0;
             let mut any = 0.0f32;
             for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
-                // keep() reads an edge from its upper-left end.
-                let (sr, sc) = if dr + dc < 0 {
-                    (r + dr, c + dc)
-                } else {
-                    (r, c)
-                };
-                if g.idx(r, c) == i as u32 && g.keep(sr, sc, dr.abs(), dc.abs()) {
+                if g.idx(r, c) == i as u32 && g.keep_at(r, c, dr, dc) {
                     joined += 1;
                     if let (Some(a), Some(b)) = (g.get(r, c), g.get(r + dr, c + dc)) {
                         let e = b - a;
@@ -429,13 +445,7 @@ pub fn grid_skirts(points: &[Vec3], grid: &Grid, view: View, normals: &[Vec3]) -
             // other surface's sample lies along this one (to the corner, not past it).
             let mut skirt = 0.0f32;
             for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
-                // keep() and joins() read an edge from its upper-left end.
-                let (sr, sc) = if dr + dc < 0 {
-                    (r + dr, c + dc)
-                } else {
-                    (r, c)
-                };
-                if g.keep(sr, sc, dr.abs(), dc.abs()) {
+                if g.keep_at(r, c, dr, dc) {
                     continue;
                 }
                 let half = || g.footprint(r, c, n).map_or(0.0, |h| h / 2f32.sqrt());
@@ -444,7 +454,7 @@ pub fn grid_skirts(points: &[Vec3], grid: &Grid, view: View, normals: &[Vec3]) -
                     // one's plane, and a disk reaching into the corner ends in that surface.
                     // The corner lies within the next pixel: at most a whole pitch (a longer
                     // reach is an edge the ratio test let across a jump).
-                    Some(q) if g.joins(sr, sc, dr.abs(), dc.abs()) && (q - p).dot(n) > 0.0 => {
+                    Some(q) if g.joins_at(r, c, dr, dc) && (q - p).dot(n) > 0.0 => {
                         let (e, h) = (q - p, half());
                         (e - n * e.dot(n)).length().clamp(h, 2.0 * h)
                     }
@@ -599,13 +609,22 @@ mod tests {
         (p, g, normals)
     }
 
+    /// The point at `(r, c)` of a grid.
+    fn cell(p: &[Vec3], g: &Grid, r: u32, c: u32) -> usize {
+        (0..p.len())
+            .find(|&i| g.row[i] == r && g.col[i] == c)
+            .unwrap()
+    }
+
+    /// The area of the footprint on the floor of [`grazing_floor`]'s far-row pixel at `q`
+    /// (1° steps, 10° down).
+    fn far_footprint(q: Vec3) -> f32 {
+        let pitch = q.length() * 1f32.to_radians();
+        pitch * pitch / 10f32.to_radians().sin()
+    }
+
     #[test]
     fn boundary_disks_stay_within_their_pixel_but_creases_keep_theirs() {
-        let cell = |p: &[Vec3], g: &Grid, r: u32, c: u32| {
-            (0..p.len())
-                .find(|&i| g.row[i] == r && g.col[i] == c)
-                .unwrap()
-        };
         let (p, g, normals) = grazing_floor(false);
         let rad = vec![9.0f32; p.len()];
         let radii = grid_radii(&p, &g, View::Origin, &normals, &rad).unwrap();
@@ -614,11 +633,7 @@ mod tests {
         // half-diagonal of 0.17 m.
         let far = cell(&p, &g, 4, 5);
         let depth = p[far].distance(p[cell(&p, &g, 5, 5)]);
-        let (pitch, cos) = (
-            p[far].length() * 1f32.to_radians(),
-            10f32.to_radians().sin(),
-        );
-        let square = (0.5 * pitch * pitch / cos).sqrt();
+        let square = (0.5 * far_footprint(p[far])).sqrt();
         assert!(
             square < 0.7 * BORDER_RADIUS_FACTOR * depth,
             "{square} {depth}"
@@ -644,21 +659,12 @@ mod tests {
 
     #[test]
     fn skirts_close_silhouettes_and_concave_creases() {
-        let cell = |p: &[Vec3], g: &Grid, r: u32, c: u32| {
-            (0..p.len())
-                .find(|&i| g.row[i] == r && g.col[i] == c)
-                .unwrap()
-        };
         let (p, g, normals) = grazing_floor(false);
         let skirt = grid_skirts(&p, &g, View::Origin, &normals).unwrap();
         // The far row ends at the sky: half its pixel's pitch on the floor, the square root
         // of the footprint's area over two.
         let far = cell(&p, &g, 4, 5);
-        let (pitch, cos) = (
-            p[far].length() * 1f32.to_radians(),
-            10f32.to_radians().sin(),
-        );
-        let half = 0.5 * (pitch * pitch / cos).sqrt();
+        let half = 0.5 * far_footprint(p[far]).sqrt();
         assert!(
             (skirt[far] - half).abs() < 0.02 * half,
             "{} {half}",
