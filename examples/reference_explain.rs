@@ -174,7 +174,8 @@ fn main() -> anyhow::Result<()> {
         }
         if let Some(q) = kv.get("region") {
             // Only points whose world position lies in `x0,x1,y0,y1,z0,z1`.
-            let b: Vec<f64> = q.split(',').map(|x| x.parse().unwrap_or(0.0)).collect();
+            let b: Vec<f64> = q.split(',').map(str::parse).collect::<Result<_, _>>()?;
+            anyhow::ensure!(b.len() == 6, "region=X0,X1,Y0,Y1,Z0,Z1 takes six numbers");
             errs.retain(|&(_, i)| {
                 let w = frame.transform_point3(pts[i].as_dvec3());
                 (b[0]..=b[1]).contains(&w.x)

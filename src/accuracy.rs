@@ -137,7 +137,7 @@ fn mesh_of(
     grid()
 }
 
-/// Adds the disks that close the silhouettes of scan `s`'s grid triangulation
+/// Adds the disks that close the silhouettes and creases of scan `s`'s grid triangulation
 /// ([`reference::grid_skirts`]).
 fn add_skirts(b: &mut reference::SceneBuilder, s: &Scan, normals: &[Vec3]) -> Result<()> {
     let Some(g) = &s.grid else {
