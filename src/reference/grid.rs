@@ -72,8 +72,9 @@ struct Cells<'a> {
     cols: usize,
     cos_view: f32,
     view: View,
-    /// Unit normals per point for the crease rule of [`Cells::keep`]; empty: no rule.
+    /// Normals per point for the crease rule of [`Cells::keep`]; empty: no rule.
     normals: &'a [Vec3],
+    cos_crease: f32,
 }
 
 impl<'a> Cells<'a> {
@@ -108,7 +109,22 @@ impl<'a> Cells<'a> {
             cos_view: MIN_VIEW_ANGLE_DEG.to_radians().cos(),
             view,
             normals: &[],
+            cos_crease: CREASE_DEG.to_radians().cos(),
         })
+    }
+
+    /// [`Cells::new`] with the crease rule of `normals` (one per point; else none).
+    fn with_normals(
+        points: &'a [Vec3],
+        grid: &Grid,
+        view: View,
+        normals: &'a [Vec3],
+    ) -> Result<Cells<'a>> {
+        let mut g = Cells::new(points, grid, view)?;
+        if normals.len() == points.len() {
+            g.normals = normals;
+        }
+        Ok(g)
     }
 
     fn idx(&self, r: isize, c: isize) -> u32 {
@@ -184,12 +200,9 @@ impl<'a> Cells<'a> {
     /// With normals, do the ends of the edge (r, c) → (r + dr, c + dc) face more than
     /// [`CREASE_DEG`] apart?
     fn crease(&self, r: isize, c: isize, dr: isize, dc: isize) -> bool {
-        let normal = |i: u32| {
-            let n = self.normals.get(i as usize).copied().unwrap_or(Vec3::ZERO);
-            n.normalize_or_zero()
-        };
+        let normal = |i: u32| unit(self.normals, i as usize);
         let (na, nb) = (normal(self.idx(r, c)), normal(self.idx(r + dr, c + dc)));
-        na != Vec3::ZERO && nb != Vec3::ZERO && na.dot(nb) < CREASE_DEG.to_radians().cos()
+        na != Vec3::ZERO && nb != Vec3::ZERO && na.dot(nb) < self.cos_crease
     }
 
     /// [`Cells::keep`] of the edge from `(r, c)` to its neighbour at `(r + dr, c + dc)` in
@@ -246,6 +259,15 @@ impl<'a> Cells<'a> {
     }
 }
 
+/// The unit normal of point `i` (zero when there is none or it is zero).
+fn unit(normals: &[Vec3], i: usize) -> Vec3 {
+    normals
+        .get(i)
+        .copied()
+        .unwrap_or(Vec3::ZERO)
+        .normalize_or_zero()
+}
+
 /// The upper-left end of the edge from `(r, c)` to `(r + dr, c + dc)`.
 fn upper_left(r: isize, c: isize, dr: isize, dc: isize) -> (isize, isize) {
     if dr + dc < 0 {
@@ -279,10 +301,7 @@ pub fn triangulate_grid_creased(
     view: View,
     normals: &[Vec3],
 ) -> Result<Vec<[u32; 3]>> {
-    let mut g = Cells::new(points, grid, view)?;
-    if normals.len() == points.len() {
-        g.normals = normals;
-    }
+    let g = Cells::with_normals(points, grid, view, normals)?;
     let per_row: Vec<Vec<[u32; 3]>> = (0..g.rows.saturating_sub(1))
         .into_par_iter()
         .map(|r| {
@@ -360,11 +379,7 @@ pub fn grid_radii(
         .into_par_iter()
         .map(|i| {
             let (r, c) = (grid.row[i] as isize, grid.col[i] as isize);
-            let n = normals
-                .get(i)
-                .copied()
-                .unwrap_or(Vec3::ZERO)
-                .normalize_or_zero();
+            let n = unit(normals, i);
             let mut longest = 0.0f32;
             let mut kept = 0;
             // Edges the triangulation keeps (towards a neighbour on this surface or across a
@@ -423,10 +438,7 @@ pub fn grid_radii(
 /// crease as far as the other surface's sample lies along its surface (up to one pitch), so
 /// that it reaches into the corner; 0 elsewhere.
 pub fn grid_skirts(points: &[Vec3], grid: &Grid, view: View, normals: &[Vec3]) -> Result<Vec<f32>> {
-    let mut g = Cells::new(points, grid, view)?;
-    if normals.len() == points.len() {
-        g.normals = normals;
-    }
+    let g = Cells::with_normals(points, grid, view, normals)?;
     Ok((0..points.len())
         .into_par_iter()
         .map(|i| {
@@ -434,31 +446,30 @@ pub fn grid_skirts(points: &[Vec3], grid: &Grid, view: View, normals: &[Vec3]) -
             if g.idx(r, c) != i as u32 {
                 return 0.0;
             }
-            let n = normals
-                .get(i)
-                .copied()
-                .unwrap_or(Vec3::ZERO)
-                .normalize_or_zero();
+            let n = unit(normals, i);
             let p = points[i];
             // Half the pitch on a silhouette (the footprint's half-diagonal is
             // sqrt(area / 2), half its pitch sqrt(area) / 2); across a crease, as far as the
             // other surface's sample lies along this one (to the corner, not past it).
             let mut skirt = 0.0f32;
+            // The footprint, found once on the first edge that is not kept.
+            let mut half = None;
             for (dr, dc) in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
                 if g.keep_at(r, c, dr, dc) {
                     continue;
                 }
-                let half = || g.footprint(r, c, n).map_or(0.0, |h| h / 2f32.sqrt());
+                let h = *half
+                    .get_or_insert_with(|| g.footprint(r, c, n).map_or(0.0, |h| h / 2f32.sqrt()));
                 let reach = match g.get(r + dr, c + dc) {
                     // A concave crease: the other surface's sample stands in front of this
                     // one's plane, and a disk reaching into the corner ends in that surface.
                     // The corner lies within the next pixel: at most a whole pitch (a longer
                     // reach is an edge the ratio test let across a jump).
                     Some(q) if g.joins_at(r, c, dr, dc) && (q - p).dot(n) > 0.0 => {
-                        let (e, h) = (q - p, half());
+                        let e = q - p;
                         (e - n * e.dot(n)).length().clamp(h, 2.0 * h)
                     }
-                    _ => half(),
+                    _ => h,
                 };
                 skirt = skirt.max(reach);
             }
