@@ -47,16 +47,30 @@
 //! Far-face rule: a view in whose solid depth `p` lies, facing away from it, infers nothing
 //! for `p`'s rays: `p` is then the far face of an element thinner than that depth, and the
 //! view knows nothing of the space beyond it.
+//!
+//! Cost: a ray's samples fall scattered over the maps, and most of them, in most views, are
+//! in front of every stored surface, deep behind one (a view that sees the point's surface
+//! from behind), or over empty pixels. On orthographic and pinhole maps each view keeps per
+//! tile of 8 × 8 pixels which pixels hold a point and the range of their depths
+//! (`front.rs`), and every six samples of a ray are first tested together: the image of the
+//! segment holding them is a segment, so the tiles it touches settle the run without
+//! projecting the samples between; a sample that is not settled is still told in front or
+//! deep from its own tile without reading its pixel. The answers are the ones reading every
+//! pixel gives (a unit test checks runs against each sample; outputs are byte-identical).
+//! Equirectangular maps read every sample: their segments' images are arcs.
 
 use super::{View, ViewMaps};
 use crate::falloff::Falloff;
-use crate::projection::{floor_i64, Model, Projection};
+use crate::projection::{floor_i64, Model, Projected, Projection};
 use crate::rng::Rng;
 use glam::{Affine3A, DMat4, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
 use serde::Serialize;
 
 mod filter;
+mod front;
+
+use front::{FrontTiles, Seen, Span};
 
 /// Default radius in pixels of the union's edge-aware smoothing ([`UnionParams::filter`]).
 pub const FILTER_RADIUS: u32 = 3;
@@ -103,6 +117,10 @@ struct Lens<'a> {
     rel: Affine3A,
     /// A pixel's size in metres at depth `d` is `pixel.0 + pixel.1 · d` (at the map's centre).
     pixel: (f32, f32),
+    /// What a sample's pixel holds, known without reading the pixel; only on maps where
+    /// [`Lens::run`] settles runs of samples (elsewhere the pixel is read: on maps that fit
+    /// the cache the tiles cost more than they save).
+    front: Option<&'a FrontTiles>,
 }
 
 /// [`Lens::pixel`] of `proj`: a constant for an orthographic view, proportional to the depth
@@ -117,6 +135,22 @@ fn pixel_size(proj: &Projection) -> (f32, f32) {
     let (s1, s2) = (at(1.0), at(2.0));
     let slope = (s2 - s1).max(0.0);
     ((s1 - slope).max(0.0), slope)
+}
+
+/// [`Lens::depth`] of `p` in a view projecting with `proj`.
+#[inline]
+fn depth_in(proj: &Projection, p: Vec3) -> f32 {
+    match proj.model {
+        Model::Ortho { toward, depth0, .. } => depth0 - toward.dot(p),
+        _ => p.length(),
+    }
+}
+
+/// A point in a view's frame and its projection there.
+#[derive(Debug, Clone, Copy)]
+struct Spot {
+    qj: Vec3,
+    pr: Projected,
 }
 
 /// What one view says about a 3-D point.
@@ -148,36 +182,122 @@ impl Lens<'_> {
     /// sensor, or the distance along an orthographic view's axis.
     #[inline]
     fn depth(&self, p: Vec3) -> f32 {
-        match self.proj.model {
-            Model::Ortho { toward, depth0, .. } => depth0 - toward.dot(p),
-            _ => p.length(),
-        }
+        depth_in(self.proj, p)
     }
 
-    /// The view's reading at `q` (target frame).
+    /// `q` (target frame) in the view's frame and projected (`None`: no image, or no finite
+    /// depth).
     #[inline]
-    fn read(&self, q: Vec3) -> Option<Reading> {
+    fn spot(&self, q: Vec3) -> Option<Spot> {
         let qj: Vec3 = self.rel.transform_point3a(Vec3A::from(q)).into();
         let pr = self.proj.project(qj)?;
-        if !pr.depth.is_finite() {
-            return None;
-        }
+        pr.depth.is_finite().then_some(Spot { qj, pr })
+    }
+
+    /// The pixel of `q` (target frame), its index and `q`'s depth.
+    #[inline]
+    fn locate(&self, q: Vec3) -> Option<((i64, i64), usize, f32)> {
+        self.pixel_of(self.spot(q)?)
+    }
+
+    /// The pixel of a spot, its index and its depth.
+    #[inline]
+    fn pixel_of(&self, Spot { pr, .. }: Spot) -> Option<((i64, i64), usize, f32)> {
         let px = (floor_i64(pr.x), floor_i64(pr.y));
         let idx = self.proj.pixel_at(px.0, px.1)?;
+        Some((px, idx, pr.depth))
+    }
+
+    /// The reading of a point at depth `d` in pixel `idx` (at `px`).
+    #[inline]
+    fn at(&self, px: (i64, i64), idx: usize, d: f32) -> Option<Reading> {
         let (dd, rad) = self.stored(idx)?;
         Some(Reading {
-            s: pr.depth - dd,
-            d: pr.depth,
+            s: d - dd,
+            d,
             rad,
             idx,
             px,
         })
     }
 
+    /// The view's reading at `q` (target frame).
+    #[inline]
+    fn read(&self, q: Vec3) -> Option<Reading> {
+        let (px, idx, d) = self.locate(q)?;
+        self.at(px, idx, d)
+    }
+
+    /// What the view says of a ray's sample at `q`: the tiles, where there are any, tell
+    /// most samples in front of every stored surface, or deep behind (more than the solid
+    /// depth for `thickness`), apart without reading their pixel.
+    #[inline]
+    fn probe(&self, q: Vec3, thickness: f32) -> Probe {
+        self.probe_spot(self.spot(q), thickness)
+    }
+
+    /// [`Lens::probe`] of a sample already projected.
+    #[inline(always)]
+    fn probe_spot(&self, spot: Option<Spot>, thickness: f32) -> Probe {
+        let Some((px, idx, d)) = spot.and_then(|s| self.pixel_of(s)) else {
+            return Probe::Nothing;
+        };
+        let solid = || solid_depth(thickness, self.pixel_size(d));
+        let seen = match self.front {
+            Some(f) => f.seen(idx, px.1 as usize, d, solid),
+            None => Seen::Unknown,
+        };
+        match seen {
+            Seen::Empty => Probe::Nothing,
+            Seen::Front => Probe::Front,
+            Seen::Deep => Probe::Deep,
+            Seen::Unknown => self.at(px, idx, d).map_or(Probe::Nothing, Probe::At),
+        }
+    }
+
     /// The size of a pixel (metres) at depth `d`: the finest detail the view resolves there.
     #[inline]
     fn pixel_size(&self, d: f32) -> f32 {
         self.pixel.0 + self.pixel.1 * d
+    }
+
+    /// What every sample of a ray between the spots `a` and `b` is in the view, known
+    /// from the tiles its image touches without projecting the samples between: on
+    /// orthographic and pinhole maps the image of a segment (in front of the camera) is a
+    /// segment, monotone in each axis through the warps, so its pixels lie in the box of its
+    /// ends' (widened by a pixel for rounding). The depth along it lies between its ends'
+    /// (orthographic) or between the distance of the sensor to the segment and the larger of
+    /// its ends' (pinhole). `None`: it could not be settled.
+    fn run(&self, a: Option<Spot>, b: Option<Spot>, thickness: f32) -> Option<Run> {
+        let front = self.front?;
+        let (Spot { qj: qa, pr: pa }, Spot { qj: qb, pr: pb }) = (a?, b?);
+        let (mut dlo, dhi) = (pa.depth.min(pb.depth), pa.depth.max(pb.depth));
+        if let Model::Perspective { .. } = self.proj.model {
+            let e = qb - qa;
+            let l2 = e.length_squared();
+            if l2 > 0.0 {
+                let u = (-qa.dot(e) / l2).clamp(0.0, 1.0);
+                dlo = dlo.min((qa + e * u).length());
+            }
+        }
+        // Rounding of each sample's own transform and projection.
+        let pad = 1e-5 * dhi.abs().max(dlo.abs()) + 1e-6;
+        let (dlo, dhi) = (dlo - pad, dhi + pad);
+        let Span { any, near, far } = front.span(
+            floor_i64(pa.x.min(pb.x)).saturating_sub(1),
+            floor_i64(pa.y.min(pb.y)).saturating_sub(1),
+            floor_i64(pa.x.max(pb.x)).saturating_add(1),
+            floor_i64(pa.y.max(pb.y)).saturating_add(1),
+        );
+        if !any {
+            Some(Run::DeepOrEmpty)
+        } else if dhi < near {
+            Some(Run::FrontOrEmpty)
+        } else if dlo - far > solid_depth(thickness, self.pixel_size(dhi)) {
+            Some(Run::DeepOrEmpty)
+        } else {
+            None
+        }
     }
 
     /// Whether the view saw past `r`'s point in its pixel and the four neighbours.
@@ -262,6 +382,46 @@ impl Lens<'_> {
         let h0 = 2.0 * (rad_p + near.w.max(0.0));
         nj.dot(n) > 0.5 && (near.truncate() - p).dot(n).abs() < h0
     }
+}
+
+/// A view's reading at a ray's sample as the march keeps it.
+#[derive(Debug, Clone, Copy)]
+enum Probe {
+    /// No reading: outside the map, or an empty pixel.
+    Nothing,
+    /// In front of the stored surface (not read: [`Lens::read`] gives the reading).
+    Front,
+    /// Behind the stored surface by more than the solid depth (not read).
+    Deep,
+    /// [`Probe::Front`] or [`Probe::Nothing`], not told apart ([`Run::FrontOrEmpty`]).
+    Unsure,
+    At(Reading),
+}
+
+/// What a run of a ray's samples is known to be in one view without reading them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Run {
+    /// Every sample is in front of its pixel's stored surface, or at an empty pixel.
+    FrontOrEmpty,
+    /// Every sample is deep behind its pixel's stored surface ([`Seen::Deep`]), at an empty
+    /// pixel or outside the map.
+    DeepOrEmpty,
+}
+
+/// Samples of a ray tested together by [`Lens::run`].
+const RUN: usize = 6;
+
+/// One view's state along a ray.
+#[derive(Debug, Clone, Copy)]
+struct Track {
+    /// The previous sample's probe ([`Probe::Unsure`] inside a front run).
+    prev: Probe,
+    /// The samples from `from` to before `until` are covered by `run`.
+    from: usize,
+    until: usize,
+    run: Run,
+    /// The spot of the sample ending the last run tested, which the next one starts from.
+    ahead: (usize, Option<Spot>),
 }
 
 /// Kinds of evidence for a hit.
@@ -494,51 +654,69 @@ fn march(
     omega: Vec3,
     jit: f32,
     prm: &UnionParams,
-    prev: &mut Vec<Option<Reading>>,
+    tracks: &mut Vec<Track>,
 ) -> f32 {
-    let steps = prm.steps.max(1);
+    let steps = prm.steps.max(1) as usize;
     let t0 = pt.rad;
     let span = (prm.reach - t0).max(0.0);
-    prev.clear();
-    prev.resize(lenses.len(), None);
+    let t_at = |k: usize| {
+        let u = (k as f32 + jit) / steps as f32;
+        t0 + span * u * u
+    };
+    tracks.clear();
+    tracks.resize(
+        lenses.len(),
+        Track {
+            prev: Probe::Nothing,
+            from: 0,
+            until: 0,
+            run: Run::DeepOrEmpty,
+            ahead: (usize::MAX, None),
+        },
+    );
     let mut t_prev = 0.0f32;
     for k in 0..steps {
-        let u = (k as f32 + jit) / steps as f32;
-        let t = t0 + span * u * u;
+        let t = t_at(k);
         let q = pt.p + omega * t;
         let mut best: Option<(f32, usize, f32, Evidence)> = None;
-        for (j, l) in lenses.iter().enumerate() {
-            let cur = l.read(q);
-            let Some(c) = cur else {
-                prev[j] = None;
-                continue;
-            };
-            let InView {
-                p: pj,
-                n: nj,
-                infers,
-            } = pt.in_view[j];
-            // Behind the stored surface by more than noise: the ray crossed it since the
-            // previous sample (surface evidence at the crossing) or lies within the
-            // thickness (inferred).
-            let thick = solid_depth(prm.thickness, l.pixel_size(c.d));
-            let cand = match prev[j] {
-                _ if c.s <= 0.25 * c.rad => None,
-                Some(pv) if pv.s < 0.0 => match crossing(l, pt.p, omega, (t_prev, pv), (t, c)) {
-                    Some(tc) => Some((tc, Evidence::Surface)),
-                    None if infers && c.s <= thick && l.enclosed(&c) => {
-                        Some((t, Evidence::Inferred))
-                    }
-                    None => None,
-                },
-                _ if infers && c.s <= thick && l.enclosed(&c) => Some((t, Evidence::Inferred)),
-                _ => None,
-            };
-            prev[j] = cur;
-            let Some((tc, ev)) = cand else { continue };
-            if l.same_surface(c.idx, pj, nj, pt.rad) {
+        for (j, (l, tr)) in lenses.iter().zip(tracks.iter_mut()).enumerate() {
+            // Runs of samples a view's tiles settle at once: most samples of most views are
+            // in front of every surface, or deep behind one.
+            let mut here = (tr.ahead.0 == k).then_some(tr.ahead.1);
+            if l.front.is_some() && k >= tr.until && k % RUN == 0 && k + 1 < steps {
+                // The segment to the next run's first sample (or the last sample) holds
+                // this run's samples, and its end is where the next test starts.
+                let end = (k + RUN).min(steps - 1);
+                let start = *here.get_or_insert_with(|| l.spot(q));
+                tr.ahead = (end, l.spot(pt.p + omega * t_at(end)));
+                if let Some(run) = l.run(start, tr.ahead.1, prm.thickness) {
+                    // Entering a deep run from in front is a crossing: that sample is read.
+                    let enters = matches!(tr.prev, Probe::Front | Probe::Unsure)
+                        || matches!(tr.prev, Probe::At(r) if r.s < 0.0);
+                    let from = if run == Run::DeepOrEmpty && enters {
+                        k + 1
+                    } else {
+                        k
+                    };
+                    (tr.from, tr.until, tr.run) = (from, (k + RUN).min(steps), run);
+                }
+            }
+            if (tr.from..tr.until).contains(&k) {
+                tr.prev = match tr.run {
+                    Run::FrontOrEmpty => Probe::Unsure,
+                    Run::DeepOrEmpty => Probe::Nothing,
+                };
                 continue;
             }
+            let cur = l.probe_spot(here.unwrap_or_else(|| l.spot(q)), prm.thickness);
+            let mut before = std::mem::replace(&mut tr.prev, cur);
+            if matches!(before, Probe::Unsure) && matches!(cur, Probe::At(_) | Probe::Deep) {
+                before = l.probe(pt.p + omega * t_prev, prm.thickness);
+            }
+            let Some((tc, ev, c)) = candidate(l, pt, omega, prm, (t_prev, before), (t, cur), j)
+            else {
+                continue;
+            };
             if best.is_none_or(|b| tc < b.0) {
                 best = Some((tc, j, c.rad, ev));
             }
@@ -554,6 +732,61 @@ fn march(
         t_prev = t;
     }
     f32::INFINITY
+}
+
+/// The hit view `l` (the `j`-th) reports on a ray between its previous sample (`before`, at
+/// `t_prev`) and this one (`cur`, at `t`): a crossing of its stored surface, or a sample
+/// within the solid depth behind it; `None` for the point's own surface.
+#[inline]
+fn candidate(
+    l: &Lens<'_>,
+    pt: &Shaded<'_>,
+    omega: Vec3,
+    prm: &UnionParams,
+    (t_prev, before): (f32, Probe),
+    (t, cur): (f32, Probe),
+    j: usize,
+) -> Option<(f32, Evidence, Reading)> {
+    // Deep behind the stored surface, beyond the solid depth: a crossing if the previous
+    // sample was in front, and nothing otherwise.
+    let c = match (cur, before) {
+        (Probe::At(c), _) => c,
+        (Probe::Deep, Probe::Front) => l.read(pt.p + omega * t)?,
+        (Probe::Deep, Probe::At(r)) if r.s < 0.0 => l.read(pt.p + omega * t)?,
+        _ => return None,
+    };
+    // In front of the stored surface, or behind it by no more than noise.
+    if c.s <= 0.25 * c.rad {
+        return None;
+    }
+    // The previous sample read again where only its side was kept (the same point, so the
+    // same reading).
+    let pv = match before {
+        Probe::At(r) => Some(r),
+        Probe::Front => l.read(pt.p + omega * t_prev),
+        // Behind by more than noise, or nothing there: what follows needs only that.
+        Probe::Nothing | Probe::Deep | Probe::Unsure => None,
+    };
+    let InView {
+        p: pj,
+        n: nj,
+        infers,
+    } = pt.in_view[j];
+    // Behind the stored surface by more than noise: the ray crossed it since the previous
+    // sample (surface evidence at the crossing) or lies within the thickness (inferred).
+    let thick = solid_depth(prm.thickness, l.pixel_size(c.d));
+    let inferred = || infers && c.s <= thick && l.enclosed(&c);
+    let cand = match pv {
+        Some(pv) if pv.s < 0.0 => match crossing(l, pt.p, omega, (t_prev, pv), (t, c)) {
+            Some(tc) => Some((tc, Evidence::Surface)),
+            None if inferred() => Some((t, Evidence::Inferred)),
+            None => None,
+        },
+        _ if inferred() => Some((t, Evidence::Inferred)),
+        _ => None,
+    };
+    let (tc, ev) = cand?;
+    (!l.same_surface(c.idx, pj, nj, pt.rad)).then_some((tc, ev, c))
 }
 
 /// An orthonormal tangent frame of unit `n`.
@@ -579,7 +812,7 @@ fn shade(
     pt: &Shaded<'_>,
     stream: u64,
     prm: &UnionParams,
-    prev: &mut Vec<Option<Reading>>,
+    prev: &mut Vec<Track>,
 ) -> Shade {
     let half = prm.rays.div_ceil(2).max(1);
     let mut rng = Rng::new(prm.seed, stream);
@@ -635,7 +868,7 @@ pub struct UnionTarget<'a> {
 struct Scratch<'a> {
     sub: Vec<Lens<'a>>,
     in_view: Vec<InView>,
-    prev: Vec<Option<Reading>>,
+    prev: Vec<Track>,
 }
 
 /// Union occlusion of every point of `t` against `views` (its own among them), and each
@@ -646,13 +879,30 @@ pub fn union_scan(
     prm: &UnionParams,
     bent: bool,
 ) -> (Vec<f32>, Option<Vec<Vec3>>) {
+    // Only maps where a segment's image is a segment get tiles (see `Lens::run`).
+    let fronts: Vec<Option<FrontTiles>> = views
+        .iter()
+        .map(|v| {
+            let straight = matches!(
+                v.proj.model,
+                Model::Ortho { .. } | Model::Perspective { .. }
+            );
+            (straight && !v.proj.wrap_x).then(|| {
+                FrontTiles::new(v.maps.width, &v.maps.near, |q| {
+                    depth_in(v.proj, q.truncate())
+                })
+            })
+        })
+        .collect();
     let lenses: Vec<Lens<'_>> = views
         .iter()
-        .map(|v| Lens {
+        .zip(&fronts)
+        .map(|(v, front)| Lens {
             proj: v.proj,
             maps: v.maps,
             rel: Affine3A::from_mat4((v.pose.inverse() * t.pose).as_mat4()),
             pixel: pixel_size(v.proj),
+            front: front.as_ref(),
         })
         .collect();
     let bounds = Bounds::of(&lenses, prm);
@@ -698,25 +948,4 @@ pub fn union_scan(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_ray_has_left_the_bounds_only_outside_and_moving_away() {
-        let b = Bounds {
-            lo: Vec3::new(-1.0, -2.0, 0.0),
-            hi: Vec3::new(1.0, 2.0, 3.0),
-        };
-        let up = Vec3::Z;
-        assert!(!b.left(Vec3::new(0.0, 0.0, 2.9), up), "inside");
-        assert!(b.left(Vec3::new(0.0, 0.0, 3.1), up), "above, rising");
-        assert!(!b.left(Vec3::new(0.0, 0.0, 3.1), -up), "above, coming back");
-        // Outside along x while moving along x towards the box: not yet; once past, yes.
-        let d = Vec3::new(1.0, 0.0, 0.1).normalize();
-        assert!(!b.left(Vec3::new(-1.5, 0.0, 1.0), d));
-        assert!(b.left(Vec3::new(1.5, 0.0, 1.0), d));
-        // Parallel to a face beyond it stays beyond it.
-        assert!(b.left(Vec3::new(0.0, 2.5, 1.0), Vec3::X));
-        assert!(!Bounds::ALL.left(Vec3::splat(1e30), up));
-    }
-}
+mod tests;
