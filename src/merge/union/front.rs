@@ -3,8 +3,8 @@
 //! behind the deepest by more than the solid depth is deep inside whatever the view saw
 //! there. That is all most of a ray's samples need to know (a view that sees the point's
 //! surface from behind holds every sample near it deep inside), and this small record
-//! answers it without reading the pixel itself. A ray's samples fall scattered over the
-//! maps, so each pixel read is a cache miss; the tiles of a whole map fit in the cache.
+//! answers it without reading the pixel itself: a ray's samples fall scattered over the
+//! maps, and a tile's 16 bytes stand for 64 pixels' records.
 
 use glam::Vec4;
 use rayon::prelude::*;
