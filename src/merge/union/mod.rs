@@ -195,12 +195,6 @@ impl Lens<'_> {
         pr.depth.is_finite().then_some(Spot { qj, pr })
     }
 
-    /// The pixel of `q` (target frame), its index and `q`'s depth.
-    #[inline]
-    fn locate(&self, q: Vec3) -> Option<((i64, i64), usize, f32)> {
-        self.pixel_of(self.spot(q)?)
-    }
-
     /// The pixel of a spot, its index and its depth.
     #[inline]
     fn pixel_of(&self, Spot { pr, .. }: Spot) -> Option<((i64, i64), usize, f32)> {
@@ -225,19 +219,19 @@ impl Lens<'_> {
     /// The view's reading at `q` (target frame).
     #[inline]
     fn read(&self, q: Vec3) -> Option<Reading> {
-        let (px, idx, d) = self.locate(q)?;
+        self.read_spot(self.spot(q))
+    }
+
+    /// [`Lens::read`] of a point already projected.
+    #[inline]
+    fn read_spot(&self, spot: Option<Spot>) -> Option<Reading> {
+        let (px, idx, d) = self.pixel_of(spot?)?;
         self.at(px, idx, d)
     }
 
-    /// What the view says of a ray's sample at `q`: the tiles, where there are any, tell
-    /// most samples in front of every stored surface, or deep behind (more than the solid
-    /// depth for `thickness`), apart without reading their pixel.
-    #[inline]
-    fn probe(&self, q: Vec3, thickness: f32) -> Probe {
-        self.probe_spot(self.spot(q), thickness)
-    }
-
-    /// [`Lens::probe`] of a sample already projected.
+    /// What the view says of a ray's sample projected at `spot`: the tiles, where there are
+    /// any, tell most samples in front of every stored surface, or deep behind (more than
+    /// the solid depth for `thickness`), apart without reading their pixel.
     #[inline(always)]
     fn probe_spot(&self, spot: Option<Spot>, thickness: f32) -> Probe {
         let Some((px, idx, d)) = spot.and_then(|s| self.pixel_of(s)) else {
@@ -709,13 +703,17 @@ fn march(
                 };
                 continue;
             }
-            let cur = l.probe_spot(here.unwrap_or_else(|| l.spot(q)), prm.thickness);
+            let spot = here.unwrap_or_else(|| l.spot(q));
+            let cur = l.probe_spot(spot, prm.thickness);
             let mut before = std::mem::replace(&mut tr.prev, cur);
             if matches!(before, Probe::Unsure) && matches!(cur, Probe::At(_) | Probe::Deep) {
-                before = l.probe(pt.p + omega * t_prev, prm.thickness);
+                // In front or over nothing: its reading, or none.
+                before = l
+                    .read(pt.p + omega * t_prev)
+                    .map_or(Probe::Nothing, Probe::At);
             }
-            let Some((tc, ev, c)) = candidate(l, pt, omega, prm, (t_prev, before), (t, cur), j)
-            else {
+            let now = (t, cur, spot);
+            let Some((tc, ev, c)) = candidate(l, pt, omega, prm, (t_prev, before), now, j) else {
                 continue;
             };
             if best.is_none_or(|b| tc < b.0) {
@@ -736,7 +734,7 @@ fn march(
 }
 
 /// The hit view `l` (the `j`-th) reports on a ray between its previous sample (`before`, at
-/// `t_prev`) and this one (`cur`, at `t`): a crossing of its stored surface, or a sample
+/// `t_prev`) and this one (`cur`, at `t`, projected at `spot`): a crossing of its stored surface, or a sample
 /// within the solid depth behind it; `None` for the point's own surface.
 #[inline]
 fn candidate(
@@ -745,15 +743,15 @@ fn candidate(
     omega: Vec3,
     prm: &UnionParams,
     (t_prev, before): (f32, Probe),
-    (t, cur): (f32, Probe),
+    (t, cur, spot): (f32, Probe, Option<Spot>),
     j: usize,
 ) -> Option<(f32, Evidence, Reading)> {
     // Deep behind the stored surface, beyond the solid depth: a crossing if the previous
     // sample was in front, and nothing otherwise.
     let c = match (cur, before) {
         (Probe::At(c), _) => c,
-        (Probe::Deep, Probe::Front) => l.read(pt.p + omega * t)?,
-        (Probe::Deep, Probe::At(r)) if r.s < 0.0 => l.read(pt.p + omega * t)?,
+        (Probe::Deep, Probe::Front) => l.read_spot(spot)?,
+        (Probe::Deep, Probe::At(r)) if r.s < 0.0 => l.read_spot(spot)?,
         _ => return None,
     };
     // In front of the stored surface, or behind it by no more than noise.

@@ -90,7 +90,7 @@ fn runs_of_samples_agree_with_every_sample_they_cover() {
             };
             settled[(run == Run::DeepOrEmpty) as usize] += 1;
             for k in 0..=16 {
-                let seen = l.probe(a + dir * (len * k as f32 / 16.0), 0.004);
+                let seen = l.probe_spot(l.spot(a + dir * (len * k as f32 / 16.0)), 0.004);
                 let agrees = match run {
                     Run::FrontOrEmpty => matches!(seen, Probe::Front | Probe::Nothing),
                     Run::DeepOrEmpty => matches!(seen, Probe::Deep | Probe::Nothing),
