@@ -114,6 +114,7 @@ fn run() -> anyhow::Result<()> {
             out_dir: dir.clone(),
             params,
             geometry,
+            surface: None,
             sample: 100,
             projection: Default::default(),
             force: true,

@@ -75,6 +75,7 @@ fn score(dir: &Path, c: &Case) -> (Metrics, Vec<SelfCheck>, Vec<f32>) {
                 seed: 0,
             },
             geometry: c.geometry,
+            surface: None,
             sample: 300,
             projection: Default::default(),
             force: true,
@@ -99,7 +100,7 @@ fn score(dir: &Path, c: &Case) -> (Metrics, Vec<SelfCheck>, Vec<f32>) {
         .zip(&t)
         .map(|(a, t)| (a.as_slice(), t.as_slice()))
         .collect();
-    let checks = rep.scans.iter().map(|s| s.self_check).collect();
+    let checks = rep.scans.iter().filter_map(|s| s.self_check).collect();
     let heights = rep.scans.iter().map(|s| s.own_height).collect();
     (metrics_concat(&parts), checks, heights)
 }

@@ -2,7 +2,7 @@
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use glam::DVec3;
-use mvao::accuracy::{Geometry, RefConfig};
+use mvao::accuracy::{Geometry, RefConfig, SurfaceSpec};
 use mvao::config::{ComputeParams, Config};
 use mvao::falloff::{parse_tmax, Falloff};
 use mvao::io::dataset::{PlaceOptions, PoseOverride};
@@ -237,6 +237,16 @@ pub struct ReferenceArgs {
     /// What the rays hit.
     #[arg(long, value_enum, default_value_t = Geometry::Surfels)]
     pub geometry: Geometry,
+    /// Cast at this true surface instead (a triangle mesh, PLY or OBJ, in the scans' world
+    /// frame: a reconstruction or a model of the site). Each point is moved to the nearest
+    /// point of the surface and takes that face's normal; points farther than
+    /// --surface-tolerance are written with on_surface 0 and not scored.
+    #[arg(long, value_name = "MESH", conflicts_with = "geometry")]
+    pub surface: Option<PathBuf>,
+    /// Largest distance (metres) from a point to --surface for it to be scored [default: 4 ×
+    /// the point's radius rad(p)].
+    #[arg(long, value_name = "METRES", requires = "surface")]
+    pub surface_tolerance: Option<f32>,
     /// Points per scan in the convergence check (R against 4R rays).
     #[arg(long, default_value_t = 2000)]
     pub sample: usize,
@@ -269,6 +279,10 @@ impl ReferenceArgs {
                 seed: self.seed,
             },
             geometry: self.geometry,
+            surface: self.surface.map(|path| SurfaceSpec {
+                path,
+                tolerance: self.surface_tolerance,
+            }),
             sample: self.sample,
             projection: self.projection,
             force: self.force,

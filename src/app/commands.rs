@@ -88,7 +88,17 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             // The self-check is printed even when quiet: a failed one makes the reference
             // untrustworthy.
             for s in &rep.scans {
-                let c = &s.self_check;
+                if let Some(off) = s.off_surface {
+                    if !quiet {
+                        eprintln!(
+                            "{}: {} of {} points within the tolerance of the surface; {off} off it, not scored",
+                            s.name,
+                            s.points - off,
+                            s.points
+                        );
+                    }
+                }
+                let Some(c) = &s.self_check else { continue };
                 if !quiet || !c.passed() {
                     eprintln!(
                         "{}: self-check {}: {} of {} sampled points open by the data, {} read below {} (lowest {:.3}); {:.1} % of rays met their own surface",

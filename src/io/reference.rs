@@ -1,6 +1,8 @@
 //! Reference files: `<scan>.ref.ply` per scan, the scan's valid points in input order with
 //! world `x y z`, the normal, `radius` and `ao` = the reference obscurance (written by
-//! `mvao reference`, read by `merge --reference` and `mvao eval`).
+//! `mvao reference`, read by `merge --reference` and `mvao eval`). A reference cast at a true
+//! surface also has `on_surface`: 0 marks a point too far from the surface to be scored, and
+//! readers of the reference see no value there (NaN, which every metric skips).
 
 use crate::error::{Error, Result};
 use crate::falloff::{show_tmax, tmax_from_json, Falloff};
@@ -14,16 +16,25 @@ pub fn reference_path(dir: &Path, name: &str) -> PathBuf {
     dir.join(format!("{name}.ref.ply"))
 }
 
-/// Writes one scan's reference: world x y z, normal, radius, `ao` = A and, when given,
-/// `self_hits` = the rays per point that met the point's own surface.
+/// The optional per-point columns of a reference file.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RefExtras<'a> {
+    /// `self_hits`: the rays per point that met the point's own surface.
+    pub self_hits: Option<&'a [u32]>,
+    /// `on_surface`: whether the point lies on the true surface (scored) or not.
+    pub on_surface: Option<&'a [bool]>,
+}
+
+/// Writes one scan's reference: world x y z, normal, radius, `ao` = A and the `extras` given.
 pub fn write_reference_ply(
     path: &Path,
     s: &Scan,
     normals: &[Vec3],
     radii: &[f32],
     a: &[f32],
-    self_hits: Option<&[u32]>,
+    extras: RefExtras,
 ) -> Result<()> {
+    let self_hits = extras.self_hits;
     let world: Vec<[f64; 3]> = s
         .points
         .iter()
@@ -60,6 +71,13 @@ pub fn write_reference_ply(
     if self_hits.is_some() {
         cols.push(("self_hits", ScalarType::U32, &hits));
     }
+    let on: Vec<f64> = extras
+        .on_surface
+        .map(|o| o.iter().map(|&b| f64::from(u8::from(b))).collect())
+        .unwrap_or_default();
+    if extras.on_surface.is_some() {
+        cols.push(("on_surface", ScalarType::U8, &on));
+    }
     let ply = PlyFile::from_vertex_columns(
         &cols,
         &[format!(
@@ -80,6 +98,22 @@ pub fn read_ao(path: &Path) -> Result<Vec<f32>> {
     Ok(v.iter().map(|&x| x as f32).collect())
 }
 
+/// Reads a reference file's values: its `ao`, NaN where `on_surface` is 0 (not scored).
+pub fn read_reference_ao(path: &Path) -> Result<Vec<f32>> {
+    let ply = PlyFile::from_path(path)?;
+    let v = ply
+        .scalar_column("vertex", "ao")
+        .ok_or_else(|| Error::format(path, "has no per-vertex 'ao' property"))?;
+    let on = ply.scalar_column("vertex", "on_surface");
+    Ok(v.iter()
+        .enumerate()
+        .map(|(i, &x)| match on.as_ref().and_then(|o| o.get(i)) {
+            Some(&0.0) => f32::NAN,
+            _ => x as f32,
+        })
+        .collect())
+}
+
 /// The references of `scans` from `dir`, checked against their point counts.
 pub fn load_reference(dir: &Path, scans: &[Scan]) -> Result<Vec<Vec<f32>>> {
     let named: Vec<(String, usize)> = scans.iter().map(|s| (s.name.clone(), s.len())).collect();
@@ -98,7 +132,7 @@ pub fn load_reference_named(dir: &Path, scans: &[(String, usize)]) -> Result<Vec
                     p.display(),
                 )));
             }
-            let a = read_ao(&p)?;
+            let a = read_reference_ao(&p)?;
             if a.len() != *len {
                 return Err(Error::format(
                     &p,

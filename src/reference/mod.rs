@@ -131,7 +131,8 @@ impl Default for RefParams {
 }
 
 impl RefParams {
-    fn check(&self) -> Result<()> {
+    /// Refuses rays outside `1..=MAX_RAYS` and a non-positive `t_max`.
+    pub(crate) fn check(&self) -> Result<()> {
         if self.rays == 0 || self.rays > MAX_RAYS {
             return Err(Error::Param(format!(
                 "reference: rays must be in 1..={MAX_RAYS}, got {}",

@@ -274,6 +274,11 @@ impl MeshScene {
         }
     }
 
+    /// Triangles in the hierarchy (degenerate ones included).
+    pub fn triangle_count(&self) -> usize {
+        self.tris.len()
+    }
+
     /// Largest side of the mesh's bounding box.
     pub fn extent(&self) -> f64 {
         self.extent

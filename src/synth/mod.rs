@@ -359,7 +359,7 @@ fn write_truth(dir: &Path, name: &str, scan: &Scan, normals: &[Vec3], a: &[f32])
         normals,
         &vec![0.0f32; scan.len()],
         a,
-        None,
+        Default::default(),
     )
 }
 

@@ -3,13 +3,17 @@
 //!
 //! A reference directory holds `<scan>.ref.ply` per scan — the scan's valid points in input
 //! order with world `x y z`, the normal, `radius` and `ao` = the reference obscurance `A` —
-//! and `reference.json` with the parameters and the convergence report.
+//! and `reference.json` with the parameters and the convergence report. The rays hit the
+//! scans themselves (surfels or triangles), or a known true surface ([`surface`]).
+
+mod surface;
 
 use crate::error::{Error, Result};
 use crate::eval::{metrics_concat, Metrics};
 use crate::io::dataset::{Dataset, PlaceOptions};
 pub use crate::io::reference::{
-    load_reference, load_reference_named, read_ao, reference_path, write_reference_ply,
+    load_reference, load_reference_named, read_ao, read_reference_ao, reference_path,
+    write_reference_ply, RefExtras,
 };
 use crate::io::source::Container;
 use crate::reference::{self, Convergence, RefParams, Scene};
@@ -20,6 +24,7 @@ use glam::Vec3;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+pub use surface::{SurfaceSpec, TOLERANCE_RADII};
 
 /// What the reference rays hit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
@@ -30,6 +35,9 @@ pub enum Geometry {
     Surfels,
     /// Triangles: the input's faces, else its native grid triangulated, else surfels.
     Mesh,
+    /// A true surface given apart from the scans (`--surface`).
+    #[value(skip)]
+    Surface,
 }
 
 /// Everything `mvao reference` needs.
@@ -43,8 +51,10 @@ pub struct RefConfig {
     pub out_dir: PathBuf,
     /// Rays, t_max, seed.
     pub params: RefParams,
-    /// Geometry the rays hit.
+    /// Geometry the rays hit (the scans'; ignored when `surface` is given).
     pub geometry: Geometry,
+    /// A true surface to cast at instead of the scans.
+    pub surface: Option<SurfaceSpec>,
     /// Points in the convergence sample of each scan.
     pub sample: usize,
     /// Sensor model choice (orients estimated normals).
@@ -64,8 +74,13 @@ pub struct RefScan {
     pub mean_a: f64,
     /// |A_R − A_4R| on a sample, and the timing of the main run.
     pub convergence: Convergence,
-    /// Open points (by the data) that the reference darkens, on a sample.
-    pub self_check: reference::SelfCheck,
+    /// Open points (by the data) that the reference darkens, on a sample (not run against a
+    /// true surface).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub self_check: Option<reference::SelfCheck>,
+    /// Against a true surface: points farther from it than the tolerance, not scored.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub off_surface: Option<usize>,
     /// Height over a point's tangent plane below which a surface parallel to it is taken as
     /// its own: the separation measured between this scan and the others that overlap it
     /// (scene units; 0 when none does).
@@ -81,6 +96,9 @@ pub struct RefReport {
     pub params: RefParams,
     /// Geometry the rays hit.
     pub geometry: Geometry,
+    /// The true surface cast at (`--surface`), if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface: Option<String>,
     /// Surfels in the scene.
     pub surfels: usize,
     /// Triangles in the scene.
@@ -170,6 +188,9 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
             )));
         }
     }
+    if let Some(spec) = &cfg.surface {
+        return run_surface(cfg, spec, &ds, t_all, progress);
+    }
     let frame = ds.scans[0].pose;
     let mut b = Scene::builder(frame);
     let mut geo = Vec::with_capacity(ds.scans.len());
@@ -178,7 +199,7 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         let (normals, radii, _) = crate::view::scan_normals(s, &setup);
         let radii = reference::surfel_radii(s, &normals, &radii)?;
         let mesh = match cfg.geometry {
-            Geometry::Surfels => None,
+            Geometry::Surfels | Geometry::Surface => None,
             Geometry::Mesh => mesh_of(s, &ds.files[ds.origin[i].0].container, &normals)?,
         };
         match &mesh {
@@ -230,11 +251,15 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
             normals,
             radii,
             &r.a,
-            Some(&r.self_hits),
+            RefExtras {
+                self_hits: Some(&r.self_hits),
+                on_surface: None,
+            },
         )?;
         scans.push(RefScan {
             own_height: scene.self_height(),
-            self_check: check,
+            self_check: Some(check),
+            off_surface: None,
             name: s.name.clone(),
             points: s.len(),
             mean_a: r.a.iter().map(|&v| v as f64).sum::<f64>() / s.len().max(1) as f64,
@@ -245,6 +270,7 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         version: env!("CARGO_PKG_VERSION").to_string(),
         params: cfg.params,
         geometry: cfg.geometry,
+        surface: None,
         surfels: scene.surfel_count(),
         triangles: scene.triangle_count(),
         scans,
@@ -252,12 +278,91 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         build_s,
         wall_s: t_all.elapsed().as_secs_f64(),
     };
+    write_report(cfg, report)
+}
+
+/// Writes `reference.json` and hands the report back.
+fn write_report(cfg: &RefConfig, report: RefReport) -> Result<RefReport> {
     let json = serde_json::to_vec_pretty(&report)
         .map_err(|e| Error::Param(format!("cannot encode the reference report: {e}")))?;
     crate::io::atomic::write_atomic(&cfg.out_dir.join("reference.json"), |w| {
         std::io::Write::write_all(w, &json)
     })?;
     Ok(report)
+}
+
+/// `mvao reference --surface`: every point's reference cast at the true surface `spec`
+/// ([`surface`]), written as [`run_reference`] writes it, with `on_surface` per point.
+fn run_surface(
+    cfg: &RefConfig,
+    spec: &SurfaceSpec,
+    ds: &Dataset,
+    t_all: Instant,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<RefReport> {
+    let t0 = Instant::now();
+    let scene = surface::load(spec)?;
+    let build_s = t0.elapsed().as_secs_f64();
+    let mut done = Vec::with_capacity(ds.scans.len());
+    for s in &ds.scans {
+        let setup = sensor::setup(s, cfg.projection)?;
+        let (normals, radii, _) = crate::view::scan_normals(s, &setup);
+        let r = surface::reference(&scene, s, (&normals, &radii), cfg, spec.tolerance, progress)?;
+        done.push((normals, radii, r));
+    }
+    let on: usize = done
+        .iter()
+        .map(|d| d.2.on.iter().filter(|&&b| b).count())
+        .sum();
+    let total: usize = ds.scans.iter().map(|s| s.len()).sum();
+    surface::check_any_on(&spec.path, on, total)?;
+    std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
+    let mut scans = Vec::with_capacity(ds.scans.len());
+    let (mut rays, mut secs) = (0u64, 0.0f64);
+    for (s, (normals, radii, r)) in ds.scans.iter().zip(&done) {
+        rays += r.convergence.rays_cast;
+        secs += r.convergence.seconds;
+        let extras = RefExtras {
+            self_hits: None,
+            on_surface: Some(&r.on),
+        };
+        write_reference_ply(
+            &reference_path(&cfg.out_dir, &s.name),
+            s,
+            normals,
+            radii,
+            &r.a,
+            extras,
+        )?;
+        let scored: Vec<f64> =
+            r.a.iter()
+                .zip(&r.on)
+                .filter(|p| *p.1)
+                .map(|p| *p.0 as f64)
+                .collect();
+        scans.push(RefScan {
+            name: s.name.clone(),
+            points: s.len(),
+            mean_a: scored.iter().sum::<f64>() / scored.len().max(1) as f64,
+            convergence: r.convergence,
+            self_check: None,
+            off_surface: Some(r.on.iter().filter(|&&b| !b).count()),
+            own_height: 0.0,
+        });
+    }
+    let report = RefReport {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        params: cfg.params,
+        geometry: Geometry::Surface,
+        surface: Some(spec.path.display().to_string()),
+        surfels: 0,
+        triangles: scene.triangle_count(),
+        scans,
+        rays_per_second: if secs > 0.0 { rays as f64 / secs } else { 0.0 },
+        build_s,
+        wall_s: t_all.elapsed().as_secs_f64(),
+    };
+    write_report(cfg, report)
 }
 
 /// Metrics of the result (and optionally the single-view SSAO) of every scan.
@@ -326,7 +431,7 @@ pub fn eval_files(reference_dir: &Path, results: &[PathBuf]) -> Result<Accuracy>
             crate::io::reference::check_reference_matches(reference_dir, t, f)?;
         }
         let a = read_ao(p)?;
-        let r = read_ao(&rp)?;
+        let r = read_reference_ao(&rp)?;
         if a.len() != r.len() {
             return Err(Error::format(
                 p,
