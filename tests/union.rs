@@ -346,3 +346,41 @@ fn far_face_of_a_panel_thinner_than_a_pixel_stays_open() {
     eprintln!("union {mean:.3} (bias {bias:+.3}), {k} pts");
     assert!(bias.abs() <= 0.02, "union bias {bias}");
 }
+
+#[test]
+fn gentle_ridge_beside_floor_points_is_not_their_own_surface() {
+    // A ridge 3 cm high whose faces slope at 50° (normals within the same-surface cone of the
+    // floor's) along the floor; floor points 0.5–5 cm from its foot, about 7 mm pixels. Stored
+    // points of the ridge higher than the same-surface band above the floor's tangent plane
+    // are occluders, not the floor as another view sampled it. With a band of
+    // 2 (rad(p) + rad) the whole ridge was ignored: union 1.000, bias +0.067 (now +0.022;
+    // single view +0.013).
+    let (h, slope) = (0.03f64, 50f64.to_radians());
+    let w = h / slope.tan();
+    let face = |s: f64| {
+        quad(
+            DVec3::new(s * w / 2.0, 0.0, h / 2.0),
+            DVec3::new(-s * w, 0.0, h),
+            DVec3::Y * 2.0,
+            DVec3::new(s * h, 0.0, w),
+        )
+    };
+    let scene = Scene {
+        prims: vec![floor(20.0), face(-1.0), face(1.0)],
+    };
+    let st = [
+        cam([-0.3, -0.1, 0.9], [-0.1, 0.0, 0.0], 50.0, 128),
+        cam([0.4, 0.2, 0.8], [-0.05, 0.0, 0.0], 55.0, 128),
+    ];
+    let tmax = 0.3;
+    let (u, truth) = run(&scene, &st, 0.15, tmax as f32, Occlusion::Union, false);
+    let pick = |t: &Truth| {
+        t.n.z > 0.99 && t.p.z < 1e-3 && t.p.x > -w - 0.05 && t.p.x < -w - 0.005 && t.p.y.abs() < 0.2
+    };
+    let (b_single, m_single, _) = score(&scene, &truth[0], &u[0].ssao, tmax, pick);
+    let (bias, mean, k) = score(&scene, &truth[0], &u[0].ao, tmax, pick);
+    eprintln!(
+        "single {m_single:.3} (bias {b_single:+.3}); union {mean:.3} (bias {bias:+.3}), {k} pts"
+    );
+    assert!(bias.abs() <= 0.03, "union bias {bias}");
+}
