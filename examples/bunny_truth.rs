@@ -33,7 +33,12 @@ fn main() -> anyhow::Result<()> {
         ..PlaceOptions::default()
     };
     let out = std::env::temp_dir().join("mvao-bunny-truth");
-    let reference = |files: &[PathBuf], place: &PlaceOptions, dir: PathBuf| -> anyhow::Result<()> {
+    // The surfel reference of `files`, or with `surface` the truth cast at that surface.
+    let reference = |files: &[PathBuf],
+                     place: &PlaceOptions,
+                     dir: PathBuf,
+                     surface: Option<SurfaceSpec>|
+     -> anyhow::Result<()> {
         accuracy::run_reference(
             &RefConfig {
                 scans: files.to_vec(),
@@ -46,7 +51,7 @@ fn main() -> anyhow::Result<()> {
                     seed: 0,
                 },
                 geometry: Geometry::Surfels,
-                surface: None,
+                surface,
                 sample: 200,
                 projection: Default::default(),
                 force: true,
@@ -55,31 +60,14 @@ fn main() -> anyhow::Result<()> {
         )?;
         Ok(())
     };
-    reference(&scans, &place, out.join("all"))?;
+    reference(&scans, &place, out.join("all"), None)?;
     // The truth: rays at the reconstruction from each point's nearest position on it.
     let truth_dir = out.join("truth");
-    accuracy::run_reference(
-        &RefConfig {
-            scans: scans.clone(),
-            place: place.clone(),
-            out_dir: truth_dir.clone(),
-            params: RefParams {
-                rays,
-                tmax,
-                falloff: Default::default(),
-                seed: 0,
-            },
-            geometry: Geometry::Surfels,
-            surface: Some(SurfaceSpec {
-                path: fx.join("reconstruction/bun_zipper.ply"),
-                tolerance: Some(0.002),
-            }),
-            sample: 200,
-            projection: Default::default(),
-            force: true,
-        },
-        &|_| {},
-    )?;
+    let surface = SurfaceSpec {
+        path: fx.join("reconstruction/bun_zipper.ply"),
+        tolerance: Some(0.002),
+    };
+    reference(&scans, &place, truth_dir.clone(), Some(surface))?;
     let ds = Dataset::open(&scans, &place, &|| {})?;
     let (mut all_t, mut all_j, mut all_a) = (Vec::new(), Vec::new(), Vec::new());
     for (k, s) in ds.scans.iter().enumerate() {
@@ -103,7 +91,7 @@ fn main() -> anyhow::Result<()> {
             align: Some(mlp),
             ..PlaceOptions::default()
         };
-        reference(std::slice::from_ref(file), &one, alone.clone())?;
+        reference(std::slice::from_ref(file), &one, alone.clone(), None)?;
         let joint = accuracy::read_ao(&accuracy::reference_path(&out.join("all"), &s.name))?;
         let own = accuracy::read_ao(&accuracy::reference_path(&alone, &s.name))?;
         // NaN where a point lies farther than 2 mm from the reconstruction: not scored.

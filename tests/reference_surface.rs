@@ -53,8 +53,7 @@ fn config(sum: &synth::SynthSummary, out: PathBuf, surface: Option<SurfaceSpec>)
         params: RefParams {
             rays: RAYS,
             tmax: TMAX,
-            falloff: Default::default(),
-            seed: 0,
+            ..RefParams::default()
         },
         geometry: Geometry::Surfels,
         surface,

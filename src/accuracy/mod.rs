@@ -266,23 +266,38 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
             convergence: r.convergence,
         });
     }
+    let what = (
+        cfg.geometry,
+        None,
+        scene.surfel_count(),
+        scene.triangle_count(),
+    );
+    write_report(cfg, what, scans, (rays, secs, build_s), t_all)
+}
+
+/// Writes `reference.json` for the scans' reports `scans`, cast at `what` (geometry, true
+/// surface, surfels, triangles) with `rays` rays in `secs` after `build_s` of building, and
+/// hands the report back.
+fn write_report(
+    cfg: &RefConfig,
+    what: (Geometry, Option<String>, usize, usize),
+    scans: Vec<RefScan>,
+    (rays, secs, build_s): (u64, f64, f64),
+    t_all: Instant,
+) -> Result<RefReport> {
+    let (geometry, surface, surfels, triangles) = what;
     let report = RefReport {
         version: env!("CARGO_PKG_VERSION").to_string(),
         params: cfg.params,
-        geometry: cfg.geometry,
-        surface: None,
-        surfels: scene.surfel_count(),
-        triangles: scene.triangle_count(),
+        geometry,
+        surface,
+        surfels,
+        triangles,
         scans,
         rays_per_second: if secs > 0.0 { rays as f64 / secs } else { 0.0 },
         build_s,
         wall_s: t_all.elapsed().as_secs_f64(),
     };
-    write_report(cfg, report)
-}
-
-/// Writes `reference.json` and hands the report back.
-fn write_report(cfg: &RefConfig, report: RefReport) -> Result<RefReport> {
     let json = serde_json::to_vec_pretty(&report)
         .map_err(|e| Error::Param(format!("cannot encode the reference report: {e}")))?;
     crate::io::atomic::write_atomic(&cfg.out_dir.join("reference.json"), |w| {
@@ -350,19 +365,9 @@ fn run_surface(
             own_height: 0.0,
         });
     }
-    let report = RefReport {
-        version: env!("CARGO_PKG_VERSION").to_string(),
-        params: cfg.params,
-        geometry: Geometry::Surface,
-        surface: Some(spec.path.display().to_string()),
-        surfels: 0,
-        triangles: scene.triangle_count(),
-        scans,
-        rays_per_second: if secs > 0.0 { rays as f64 / secs } else { 0.0 },
-        build_s,
-        wall_s: t_all.elapsed().as_secs_f64(),
-    };
-    write_report(cfg, report)
+    let surface = Some(spec.path.display().to_string());
+    let what = (Geometry::Surface, surface, 0, scene.triangle_count());
+    write_report(cfg, what, scans, (rays, secs, build_s), t_all)
 }
 
 /// Metrics of the result (and optionally the single-view SSAO) of every scan.
