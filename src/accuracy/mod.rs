@@ -318,50 +318,46 @@ fn run_surface(
     let t0 = Instant::now();
     let scene = surface::load(spec)?;
     let build_s = t0.elapsed().as_secs_f64();
-    let mut done = Vec::with_capacity(ds.scans.len());
+    // Every point is placed before any ray is cast, so that a surface in another frame is
+    // refused at once.
+    let mut placed = Vec::with_capacity(ds.scans.len());
     for s in &ds.scans {
         let setup = sensor::setup(s, cfg.projection)?;
         let (normals, radii, _) = crate::view::scan_normals(s, &setup);
-        let r = surface::reference(&scene, s, (&normals, &radii), cfg, spec.tolerance, progress)?;
-        done.push((normals, radii, r));
+        let (truth, on) = surface::place(&scene, s, &normals, &radii, spec.tolerance);
+        placed.push((normals, radii, truth, on));
     }
-    let on: usize = done
+    let on: usize = placed
         .iter()
-        .map(|d| d.2.on.iter().filter(|&&b| b).count())
+        .map(|d| d.3.iter().filter(|&&b| b).count())
         .sum();
     let total: usize = ds.scans.iter().map(|s| s.len()).sum();
     surface::check_any_on(&spec.path, on, total)?;
     std::fs::create_dir_all(&cfg.out_dir).map_err(|e| Error::io(&cfg.out_dir, e))?;
     let mut scans = Vec::with_capacity(ds.scans.len());
     let (mut rays, mut secs) = (0u64, 0.0f64);
-    for (s, (normals, radii, r)) in ds.scans.iter().zip(&done) {
+    for (s, (normals, radii, truth, on)) in ds.scans.iter().zip(&placed) {
+        let r = surface::reference(&scene, truth, cfg, progress)?;
         rays += r.convergence.rays_cast;
         secs += r.convergence.seconds;
         let extras = RefExtras {
             self_hits: None,
-            on_surface: Some(&r.on),
+            on_surface: Some(on),
         };
-        write_reference_ply(
-            &reference_path(&cfg.out_dir, &s.name),
-            s,
-            normals,
-            radii,
-            &r.a,
-            extras,
-        )?;
-        let scored: Vec<f64> =
+        let path = reference_path(&cfg.out_dir, &s.name);
+        write_reference_ply(&path, s, normals, radii, &r.a, extras)?;
+        let (sum, scored) =
             r.a.iter()
-                .zip(&r.on)
+                .zip(on)
                 .filter(|p| *p.1)
-                .map(|p| *p.0 as f64)
-                .collect();
+                .fold((0.0f64, 0usize), |acc, p| (acc.0 + *p.0 as f64, acc.1 + 1));
         scans.push(RefScan {
             name: s.name.clone(),
             points: s.len(),
-            mean_a: scored.iter().sum::<f64>() / scored.len().max(1) as f64,
+            mean_a: sum / scored.max(1) as f64,
             convergence: r.convergence,
             self_check: None,
-            off_surface: Some(r.on.iter().filter(|&&b| !b).count()),
+            off_surface: Some(s.len() - scored),
             own_height: 0.0,
         });
     }

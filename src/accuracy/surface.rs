@@ -38,8 +38,6 @@ pub struct SurfaceSpec {
 pub(super) struct SurfaceReference {
     /// `A` per point.
     pub a: Vec<f32>,
-    /// Whether each point lies within the tolerance of the surface (scored).
-    pub on: Vec<bool>,
     /// `|A_R − A_4R|` on a sample; timing of the main run.
     pub convergence: Convergence,
 }
@@ -58,7 +56,7 @@ pub(super) fn load(spec: &SurfaceSpec) -> Result<MeshScene> {
 
 /// Where each point of `s` lies on the surface: its truth (position, face normal, face) and
 /// whether it was within the tolerance. `normals` and `radii` are the scan's own (local).
-fn place(
+pub(super) fn place(
     scene: &MeshScene,
     s: &Scan,
     normals: &[Vec3],
@@ -99,26 +97,23 @@ fn place(
         .unzip()
 }
 
-/// The reference of scan `s` against the surface `scene`, with `prm`'s rays and falloff, and
-/// its convergence on `cfg.sample` points.
+/// The reference at the placed points `truth` of one scan against the surface `scene`, with
+/// `cfg`'s rays and falloff, and its convergence on `cfg.sample` points.
 pub(super) fn reference(
     scene: &MeshScene,
-    s: &Scan,
-    (normals, radii): (&[Vec3], &[f32]),
+    truth: &[Truth],
     cfg: &RefConfig,
-    tolerance: Option<f32>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<SurfaceReference> {
     let prm: &RefParams = &cfg.params;
     prm.check()?;
-    let (truth, on) = place(scene, s, normals, radii, tolerance);
     let set = MeshRays::new(prm.rays, (prm.tmax, prm.falloff), prm.seed);
     let start = Instant::now();
-    let a = mesh_obscurance_counted(scene, &truth, &set, progress);
+    let a = mesh_obscurance_counted(scene, truth, &set, progress);
     let seconds = start.elapsed().as_secs_f64();
     let rays_cast = truth.len() as u64 * set.rays() as u64;
-    let convergence = converge(scene, &truth, &a, &set, cfg.sample, (rays_cast, seconds));
-    Ok(SurfaceReference { a, on, convergence })
+    let convergence = converge(scene, truth, &a, &set, cfg.sample, (rays_cast, seconds));
+    Ok(SurfaceReference { a, convergence })
 }
 
 /// `|A_R − A_4R|` on `sample` points spread evenly over `truth` (each with its own index as

@@ -107,6 +107,21 @@ pub struct MergeParams {
     pub spacing: f32,
 }
 
+#[cfg(test)]
+impl MergeParams {
+    /// Unit tests' merge of single pixels: no distance or spacing weight, border falloff over
+    /// `border_px` pixels.
+    pub(crate) fn single_pixel(border_px: f32) -> MergeParams {
+        MergeParams {
+            neighbors: 1,
+            dmin: 0.0,
+            dmax: 0.0,
+            border_px,
+            spacing: 0.0,
+        }
+    }
+}
+
 /// Counters of one scan's merge; add up with `+=`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct MergeStats {

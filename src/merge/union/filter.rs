@@ -200,13 +200,7 @@ mod tests {
         let depth: Vec<f32> = pts.iter().map(|p| 2.0 - p.z).collect();
         let rad = vec![PX; W * H];
         let g = rasterize(W, H, &px, &depth, &pts, &normals, &rad);
-        let prm = MergeParams {
-            neighbors: 1,
-            dmin: 0.0,
-            dmax: 0.0,
-            border_px: 64.0,
-            spacing: 0.0,
-        };
+        let prm = MergeParams::single_pixel(64.0);
         let maps = ViewMaps::new(&proj, &g, &vec![1.0; W * H], &vec![1e3; W * H], &prm);
         let mut rng = Rng::new(7, 0);
         let raw: Vec<f32> = (0..W * H)

@@ -29,13 +29,7 @@ fn wavy_view(proj: &Projection, pose: DMat4) -> ViewMaps {
     let normals = vec![Vec3::Z; pts.len()];
     let rad = vec![0.006; pts.len()];
     let g = rasterize(w, h, &px, &depth, &pts, &normals, &rad);
-    let prm = MergeParams {
-        neighbors: 1,
-        dmin: 0.0,
-        dmax: 0.0,
-        border_px: 4.0,
-        spacing: 0.0,
-    };
+    let prm = MergeParams::single_pixel(4.0);
     ViewMaps::new(proj, &g, &vec![1.0; w * h], &vec![1e3; w * h], &prm)
 }
 
