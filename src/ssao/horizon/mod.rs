@@ -67,7 +67,10 @@
 //! evenly stratified with a per-half-plane jitter, so consecutive samples are at least a pixel
 //! apart. Samples on `p`'s pixel, on empty pixels or outside the map are skipped; a sample at
 //! 3-D distance `≥ t_max` is ignored (beyond `t_max`, `ρ = 1`: it cannot darken `p`), and one
-//! within 10⁻⁵ rad of the tangent plane counts as on it (rounding noise of a plane). The pixel's
+//! within 10⁻⁵ rad of the tangent plane counts as on it (rounding noise of a plane). Where `ρ`
+//! jumps to 1 at `t_max` (`--falloff none`) the point where the profile leaves the `t_max`
+//! sphere between a sample inside and the next one outside is taken as a sample too: the
+//! surface blocks fully up to there, however far the last sample inside lies below. The pixel's
 //! value is `a = Σ_j S_j / Σ_j T_j` (the same limit as `(1/π)·2π·mean S`, but exactly 1 when
 //! nothing rises above the tangent plane), clamped to `[0, 1]`.
 //!
@@ -282,6 +285,10 @@ struct Ctx<'a> {
     wrap: bool,
     /// Equirectangular: half-planes that reach far are marched along their great circles.
     sphere: bool,
+    /// ρ jumps to 1 at a finite `t_max` (`--falloff none`, or `exp` with a long decay): where
+    /// the profile leaves the `t_max` sphere between two samples, the point where it leaves
+    /// is offered to the horizon too ([`Ctx::offer_exit`]).
+    clip: bool,
 }
 
 impl<'a> Ctx<'a> {
@@ -308,6 +315,9 @@ impl<'a> Ctx<'a> {
             hf: g.height as f32,
             wrap: proj.wrap_x,
             sphere: proj.sensor_model() == SensorModel::Equirect,
+            clip: tmax2 > 0.0
+                && prm.tmax.is_finite()
+                && prm.falloff.rho(prm.tmax * (1.0 - 1e-6), prm.tmax) < 0.99,
         }
     }
 
@@ -489,6 +499,83 @@ impl<'a> Ctx<'a> {
         }
         let d = (dx, q.y - py);
         (d.0.is_finite() && d.1.is_finite()).then_some(d)
+    }
+}
+
+impl Ctx<'_> {
+    /// Offers the horizon of a half-plane the point where the profile leaves the `t_max` sphere
+    /// between the previous sample (offset `pv`, inside) and this one (`v`, outside), with the
+    /// march's tests; returns that point's in-plane coordinates (where the next blocker
+    /// starts), `None` when the segment does not leave the sphere. Without it a surface that
+    /// crosses the sphere would block only up to its last sample inside, which a falloff that
+    /// jumps at `t_max` weighs in full.
+    #[inline(never)]
+    fn offer_exit(
+        &self,
+        hz: &mut Horizon,
+        (pa, na): (Vec3A, Vec3A),
+        (pv, v): (Vec3A, Vec3A),
+        prev: (f32, f32),
+        arc_on: bool,
+    ) -> Option<(f32, f32)> {
+        let w = exit_point(pv, v, self.tmax2)?;
+        let l2 = w.length_squared();
+        let height = na.dot(w);
+        let height = if height * height > 1e-10 * l2 {
+            height
+        } else {
+            0.0
+        };
+        let (x, y) = (w.dot(hz.fx), w.dot(hz.fy));
+        if height > 0.0
+            && x > 0.0
+            && above_horizon(x, y, hz.sc.1)
+            && (!arc_on || joins_horizon(pa, w, hz.sc.1))
+        {
+            hz.raise(x, y, prev.0, prev.1, &self.rho);
+        }
+        Some((x, y))
+    }
+}
+
+/// Where the segment from offset `pv` (inside the sphere `|v|² = r2`) to `v` (outside) leaves
+/// the sphere.
+#[inline]
+fn exit_point(pv: Vec3A, v: Vec3A, r2: f32) -> Option<Vec3A> {
+    let d = v - pv;
+    let a = d.length_squared();
+    let b = pv.dot(d);
+    let c = pv.length_squared() - r2;
+    let disc = b * b - a * c;
+    if !(a > 0.0 && c < 0.0 && disc >= 0.0) {
+        return None;
+    }
+    let s = (disc.sqrt() - b) / a;
+    (s > 0.0 && s <= 1.0).then(|| pv + d * s)
+}
+
+/// Whether a sample at offset `v` from `p` (both relative to the sensor) extends the blocked
+/// directions `[h, hi]` of a half-plane on its own: seen from the sensor at angle `φ` from
+/// `p`, it hides only the directions `γ < π − φ` from `p` (rays at larger `γ` never come that
+/// far round), so it joins the horizon when `φ ≤ π − h`: `p·s ≥ −cos h·|s|·|p|` with
+/// `s = p + v`. The same arithmetic as the test in [`Ctx::march_lanes`].
+fn joins_horizon(pa: Vec3A, v: Vec3A, cos_h: f32) -> bool {
+    let plen = pa.length();
+    let (sx, sy, sz) = (v.x + pa.x, v.y + pa.y, v.z + pa.z);
+    let dq = (pa.x * sx + pa.y * sy) + pa.z * sz;
+    let len = ((sx * sx + sy * sy) + sz * sz).sqrt();
+    dq + cos_h * (len * plen) >= 0.0
+}
+
+/// True when direction `(x, y)` (`x > 0`) has a larger cosine than `cos_h`, without a square
+/// root: `y/√(x²+y²) > cos_h`.
+#[inline]
+fn above_horizon(x: f32, y: f32, cos_h: f32) -> bool {
+    let (y2, k) = (y * y, cos_h * cos_h * (x * x + y * y));
+    if cos_h >= 0.0 {
+        y > 0.0 && y2 > k
+    } else {
+        y >= 0.0 || y2 < k
     }
 }
 
