@@ -248,7 +248,7 @@ impl<'a> Ctx<'a> {
         // The previous sample's in-plane coordinates (NaN before the first).
         let (mut prev_x, mut prev_y) = (Vec4::NAN, Vec4::NAN);
         // The previous sample's offset, and whether it was inside the t_max sphere.
-        let mut prev_v = [Vec3A::ZERO; LANES];
+        let (mut pvx, mut pvy, mut pvz) = (Vec4::ZERO, Vec4::ZERO, Vec4::ZERO);
         let mut prev_in = BVec4A::FALSE;
         let mut live = [false; LANES];
         for (l, lv) in live.iter_mut().enumerate().take(grp.n) {
@@ -322,27 +322,32 @@ impl<'a> Ctx<'a> {
                 if self.clip {
                     let valid = !l2.is_nan_mask();
                     let mut exits = (valid & !inside & prev_in).bitmask();
+                    if exits != 0 {
+                        let (xs, ys, zs) = (vx.to_array(), vy.to_array(), vz.to_array());
+                        let (px, py, pz) = (pvx.to_array(), pvy.to_array(), pvz.to_array());
+                        let (mut pxs, mut pys) = (prev_x.to_array(), prev_y.to_array());
+                        while exits != 0 {
+                            let l = exits.trailing_zeros() as usize;
+                            exits &= exits - 1;
+                            let v = Vec3A::new(xs[l], ys[l], zs[l]);
+                            let pv = Vec3A::new(px[l], py[l], pz[l]);
+                            let hz = &mut grp.hz[l];
+                            let prev = (pxs[l], pys[l]);
+                            if let Some(xy) =
+                                self.offer_exit(hz, (pa, na), (pv, v), prev, grp.arc_on)
+                            {
+                                (pxs[l], pys[l]) = xy;
+                                cos_h[l] = hz.sc.1;
+                            }
+                        }
+                        (prev_x, prev_y) = (Vec4::from_array(pxs), Vec4::from_array(pys));
+                    }
                     prev_in = (valid & inside) | (!valid & prev_in);
-                    let (xs, ys, zs) = (vx.to_array(), vy.to_array(), vz.to_array());
-                    let (mut pxs, mut pys) = (prev_x.to_array(), prev_y.to_array());
-                    while exits != 0 {
-                        let l = exits.trailing_zeros() as usize;
-                        exits &= exits - 1;
-                        let v = Vec3A::new(xs[l], ys[l], zs[l]);
-                        let hz = &mut grp.hz[l];
-                        let prev = (pxs[l], pys[l]);
-                        let pv = prev_v[l];
-                        if let Some(xy) = self.offer_exit(hz, (pa, na), (pv, v), prev, grp.arc_on) {
-                            (pxs[l], pys[l]) = xy;
-                            cos_h[l] = hz.sc.1;
-                        }
-                    }
-                    (prev_x, prev_y) = (Vec4::from_array(pxs), Vec4::from_array(pys));
-                    for (l, pv) in prev_v.iter_mut().enumerate() {
-                        if valid.test(l) {
-                            *pv = Vec3A::new(xs[l], ys[l], zs[l]);
-                        }
-                    }
+                    (pvx, pvy, pvz) = (
+                        Vec4::select(valid, vx, pvx),
+                        Vec4::select(valid, vy, pvy),
+                        Vec4::select(valid, vz, pvz),
+                    );
                 }
             }
             k0 += kn;
