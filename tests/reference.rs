@@ -122,7 +122,7 @@ fn open_plane_is_open() {
     // Seen from above (a grid seen from the origin, which lies in this plane, is edge-on).
     let tris = triangulate_grid_seen(&p, &g, View::Parallel(Vec3::Z)).unwrap();
     let mut b = Scene::builder(DMat4::IDENTITY);
-    b.add_triangles("plane", DMat4::IDENTITY, &p, &tris)
+    b.add_triangles("plane", DMat4::IDENTITY, &p, None, &tris)
         .unwrap();
     let scene = b.build();
     assert_eq!(scene.triangle_count(), 2 * 120 * 120);
@@ -208,7 +208,7 @@ fn floor_beside_an_infinite_wall_is_half_open() {
         Vec3::new(h, 1e4, 1e4),
         Vec3::new(h, -1e4, 1e4),
     ];
-    b.add_triangles("wall", DMat4::IDENTITY, &v, &[[0, 1, 2], [0, 2, 3]])
+    b.add_triangles("wall", DMat4::IDENTITY, &v, None, &[[0, 1, 2], [0, 2, 3]])
         .unwrap();
     let scene = b.build();
     let m = mean(&floor_points(&scene, &pts, 0.01, &prm(256, INF)));
@@ -308,7 +308,8 @@ fn closed_box_is_closed() {
         .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
         .collect();
     let mut b = Scene::builder(DMat4::IDENTITY);
-    b.add_triangles("box", DMat4::IDENTITY, &v, &tris).unwrap();
+    b.add_triangles("box", DMat4::IDENTITY, &v, None, &tris)
+        .unwrap();
     let scene = b.build();
     let a = floor_points(&scene, &pts, 0.015, &prm(512, INF));
     assert!(a.iter().all(|&x| x == 0.0), "{a:?}");
@@ -388,7 +389,7 @@ fn surfels_and_triangles_of_one_grid_agree() {
     b.add_surfels("bumps", DMat4::IDENTITY, &p, &n, &r).unwrap();
     let surf = b.build();
     let mut b = Scene::builder(DMat4::IDENTITY);
-    b.add_triangles("bumps", DMat4::IDENTITY, &p, &tris)
+    b.add_triangles("bumps", DMat4::IDENTITY, &p, None, &tris)
         .unwrap();
     let tri = b.build();
     // Interior points only (the border sees past the edge of the patch differently).
@@ -589,7 +590,7 @@ fn bad_input_is_an_error_or_open_never_nan() {
         .unwrap_err();
     assert!(e.to_string().contains("scan7"), "{e}");
     let e = b
-        .add_triangles("mesh3", DMat4::IDENTITY, &p[..3], &[[0, 1, 5]])
+        .add_triangles("mesh3", DMat4::IDENTITY, &p[..3], None, &[[0, 1, 5]])
         .unwrap_err();
     assert!(
         e.to_string().contains("mesh3") && e.to_string().contains('5'),
@@ -613,6 +614,7 @@ fn bad_input_is_an_error_or_open_never_nan() {
             "flat",
             DMat4::IDENTITY,
             &[Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
+            None,
             &[[0, 1, 2]],
         )
         .unwrap();
@@ -681,7 +683,7 @@ fn real_scan_surfels_and_grid_triangles_agree() {
         .unwrap();
     let surf = b.build();
     let mut b = Scene::builder(scan.pose);
-    b.add_triangles("bun000", scan.pose, &scan.points, &tris)
+    b.add_triangles("bun000", scan.pose, &scan.points, Some(&normals), &tris)
         .unwrap();
     let tri = b.build();
     let idx: Vec<usize> = (0..scan.len()).step_by(97).collect();
@@ -789,4 +791,85 @@ fn synthetic_room_matches_its_analytic_geometry() {
     assert!(mean(&d).abs() < 0.01, "{}", mean(&d));
     assert!(mean_abs < 0.03, "{mean_abs}");
     assert!(shaded_abs < 0.06, "{shaded_abs}");
+}
+
+/// A floor under a ceiling 1 cm above it, nearer than two of the floor points' radii: the
+/// ceiling faces back at the floor and stands over it, so it is an occluder, not the points'
+/// own surface tilted by error, and the slot reads closed at ∞. When every surface within
+/// `2·rad(p)` facing either way was taken as the point's own, the rays steeper than
+/// `acos(g / 2 rad)` passed through the ceiling (A ≈ 0.56 here).
+#[test]
+fn a_facing_surface_nearer_than_the_own_patch_closes_a_slot() {
+    let g = 0.01f32;
+    let xs = range(-0.6, 0.6, 0.002);
+    let ceiling = sheet(Vec3::Z * g, Vec3::X, Vec3::Y, &xs, &xs, Vec3::NEG_Z);
+    let pts: Vec<Vec3> = (0..16)
+        .map(|k| Vec3::new(0.003 * k as f32, -0.02, 0.0))
+        .collect();
+    let rad = 0.75 * g;
+    let mut b = Scene::builder(DMat4::IDENTITY);
+    add(&mut b, &ceiling);
+    let a = mean(&floor_points(&b.build(), &pts, rad, &prm(256, INF)));
+    assert!(a < 0.01, "surfels: {a}");
+    // The same ceiling as two triangles wound to face up, and vertex normals facing down:
+    // the normals decide the front.
+    let v = [
+        Vec3::new(-1.0, -1.0, g),
+        Vec3::new(1.0, -1.0, g),
+        Vec3::new(1.0, 1.0, g),
+        Vec3::new(-1.0, 1.0, g),
+    ];
+    let tris = [[0, 1, 2], [0, 2, 3]];
+    let mut b = Scene::builder(DMat4::IDENTITY);
+    b.add_triangles(
+        "ceiling",
+        DMat4::IDENTITY,
+        &v,
+        Some(&[Vec3::NEG_Z; 4]),
+        &tris,
+    )
+    .unwrap();
+    let a = mean(&floor_points(&b.build(), &pts, rad, &prm(256, INF)));
+    assert!(a < 0.01, "triangles facing down: {a}");
+    // Without normals the winding is the front: facing up, the ceiling is taken as the
+    // points' own surface where it is nearer than 2·rad(p).
+    let mut b = Scene::builder(DMat4::IDENTITY);
+    b.add_triangles("ceiling", DMat4::IDENTITY, &v, None, &tris)
+        .unwrap();
+    let a = mean(&floor_points(&b.build(), &pts, rad, &prm(256, INF)));
+    let open = 1.0 - (g / (2.0 * rad)).powi(2) as f64;
+    assert!(
+        (a - open).abs() < 0.03,
+        "triangles facing up: {a} against {open}"
+    );
+    let mut b = Scene::builder(DMat4::IDENTITY);
+    let err = b
+        .add_triangles("ceiling", DMat4::IDENTITY, &v, Some(&[Vec3::Z; 3]), &tris)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("ceiling") && err.contains("3 front directions for 4 vertices"),
+        "{err}"
+    );
+}
+
+/// Samples of the point's own floor whose estimated normals are tilted by up to 25° and
+/// half of them flipped (normal estimation at grazing range): none of them stands over the
+/// tangent plane, so none darkens the floor, whichever way it faces.
+#[test]
+fn own_samples_facing_back_do_not_darken_their_floor() {
+    let xs = range(-0.3, 0.3, 0.01);
+    let mut f = sheet(Vec3::ZERO, Vec3::X, Vec3::Y, &xs, &xs, Vec3::Z);
+    for (k, n) in f.n.iter_mut().enumerate() {
+        let t = (k as f32 * 0.618_034).fract();
+        let tilt = 25f32.to_radians() * t;
+        let az = k as f32 * 2.399_963;
+        let m = Vec3::new(tilt.sin() * az.cos(), tilt.sin() * az.sin(), tilt.cos());
+        *n = if k % 2 == 0 { m } else { -m };
+    }
+    let mut b = Scene::builder(DMat4::IDENTITY);
+    add(&mut b, &f);
+    let pts: Vec<Vec3> = f.p.iter().step_by(131).copied().collect();
+    let a = floor_points(&b.build(), &pts, f.r[0], &prm(128, 0.4));
+    assert!(mean(&a) > 0.99, "{}", mean(&a));
 }

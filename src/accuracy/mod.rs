@@ -204,7 +204,17 @@ pub fn run_reference(cfg: &RefConfig, progress: &(dyn Fn(u64) + Sync)) -> Result
         };
         match &mesh {
             Some((t, from_grid)) if !t.is_empty() => {
-                b.add_triangles(&s.name, s.pose, &s.points, t)?;
+                // The sensor saw each grid triangle's front (one across a structure one or two
+                // cells wide has vertex normals that disagree); a file's faces go by its normals.
+                let proj = &setup.projection;
+                let toward: Vec<Vec3>;
+                let fronts = if *from_grid {
+                    toward = s.points.iter().map(|&p| proj.toward_sensor(p)).collect();
+                    &toward
+                } else {
+                    &normals
+                };
+                b.add_triangles(&s.name, s.pose, &s.points, Some(fronts), t)?;
                 if *from_grid {
                     add_skirts(&mut b, s, &normals)?;
                 }

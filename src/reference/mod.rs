@@ -28,10 +28,13 @@
 //!    direction the disk faces) closer than `2·(rad(p) + rad(q))` is ignored: on a convex
 //!    surface every neighbour's tangent disk overhangs the query point;
 //! 3. own patch: any hit closer than `2·rad(p)` on a surface whose normal is within 60° of
-//!    the point's (`|n_q·n_p| > 0.5`, either side) is ignored: neighbours tilted by normal
-//!    error or noise, the co-located samples of another scan lifted by a registration
-//!    residual, a grid triangle cutting the corner of a crease. A real occluder that close
-//!    faces across (the wall of a crease) and is kept. The same holds at any distance for
+//!    the point's (`n_q·n_p > 0.5`) is ignored: neighbours tilted by normal error or noise,
+//!    the co-located samples of another scan lifted by a registration residual, a grid
+//!    triangle cutting the corner of a crease. A real occluder that close faces across (the
+//!    wall of a crease) and is kept. A surface facing back (`n_q·n_p < −0.5`) is ignored only
+//!    where it lies in the point's own surface (a neighbour whose estimated normal flipped):
+//!    across a groove narrower than `2·rad(p)` the facing wall stands steeply over the
+//!    tangent plane and is kept. The same holds at any distance for
 //!    such a surface lower over the tangent plane than the scan's own-surface height
 //!    ([`residual::own_heights`], [`Scene::set_self_height`]): the separation measured
 //!    between overlapping scans, which a grazing ray meets far beyond `2·rad(p)`.
@@ -252,13 +255,18 @@ impl SceneBuilder {
     }
 
     /// Adds the triangles `tris` (indices into `vertices`, local coordinates of scan `name`).
-    /// Triangles with a non-finite vertex or zero area are skipped and counted. Returns the
-    /// number added; errors on an index past the vertices or an unusable pose.
+    /// A triangle's front is the side that `fronts` (one direction per vertex: towards the
+    /// sensor that sampled it, or its normal) points to when given, else the side from which
+    /// its winding is counter-clockwise: the own-patch rule treats a surface facing the query
+    /// point differently from one facing its way. Triangles with a non-finite vertex or zero area are skipped and counted. Returns the
+    /// number added; errors on an index past the vertices, a normal count that is not the
+    /// vertex count, or an unusable pose.
     pub fn add_triangles(
         &mut self,
         name: &str,
         pose: DMat4,
         vertices: &[Vec3],
+        fronts: Option<&[Vec3]>,
         tris: &[[u32; 3]],
     ) -> Result<usize> {
         if let Some((k, t)) = tris
@@ -275,6 +283,16 @@ impl SceneBuilder {
                 ),
             ));
         }
+        if let Some(n) = fronts.filter(|n| n.len() != vertices.len()) {
+            return Err(Error::scan(
+                name,
+                format!(
+                    "reference scene: {} front directions for {} vertices",
+                    n.len(),
+                    vertices.len()
+                ),
+            ));
+        }
         let (rel, _) = relative(self.frame_inv, pose, name)?;
         let v: Vec<Vec3> = vertices
             .iter()
@@ -284,7 +302,13 @@ impl SceneBuilder {
         self.tris.reserve(tris.len());
         for t in tris {
             let [a, b, c] = t.map(|i| v[i as usize]);
-            let (e1, e2) = (b - a, c - a);
+            // The pose is rigid, so the winding's side is decided in local coordinates.
+            let back = fronts.is_some_and(|n| {
+                let [la, lb, lc] = t.map(|i| vertices[i as usize]);
+                let sum: Vec3 = t.iter().map(|&i| n[i as usize]).sum();
+                (lb - la).cross(lc - la).dot(sum) < 0.0
+            });
+            let (e1, e2) = if back { (c - a, b - a) } else { (b - a, c - a) };
             if !(a.is_finite() && b.is_finite() && c.is_finite()) || e1.cross(e2) == Vec3::ZERO {
                 self.skipped += 1;
                 continue;

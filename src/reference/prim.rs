@@ -11,10 +11,10 @@ use glam::Vec3;
 pub(crate) const BACK_NEAR: f32 = 2.0;
 
 /// Own-patch rule: a hit closer than `SELF_NEAR · rad(p)` on a surface facing within 60° of
-/// the query point's normal (`|n_q·n_p| > SELF_COS`) is the query point's own sampled
-/// surface — a neighbour tilted by normal error or noise, the co-located samples of another
-/// scan a registration residual lifts above it, a grid triangle cutting the corner of a
-/// crease — and is ignored. A real occluder that close faces across (a wall in a crease),
+/// the query point's normal (`n_q·n_p > SELF_COS`; facing back, see [`own_patch`]) is the
+/// query point's own sampled surface — a neighbour tilted by normal error or noise, the
+/// co-located samples of another scan a registration residual lifts above it, a grid
+/// triangle cutting the corner of a crease — and is ignored. A real occluder that close faces across (a wall in a crease),
 /// and is kept. See the module documentation of `reference` for how it was chosen.
 pub(crate) const SELF_NEAR: f32 = 2.0;
 /// Cosine of the largest angle between the query point's normal and a surface taken as its
@@ -29,11 +29,38 @@ fn near_self(ray: &Ray, t: f32) -> bool {
     t < SELF_NEAR * ray.r_self || t * ray.rise < ray.h_self
 }
 
-/// Is a hit at distance `t` on a surface of unit normal `nq` the query point's own patch?
+/// Tangent of the largest elevation over the query point's tangent plane (30°) at which a
+/// primitive facing it can still be a mis-oriented sample of its own surface.
+pub(crate) const FACING_TAN: f32 = 0.577;
+/// Height over the tangent plane, in `rad(p)`, below which a primitive facing the query point
+/// is its own surface wherever it lies: the primitive through the point itself, its front
+/// turned away by a normal or winding that disagrees with the point's.
+pub(crate) const FACING_LIFT: f32 = 0.1;
+
+/// Is a hit at distance `t` on a surface of unit normal `nq` the query point's own patch? A
+/// surface facing the point's way is; one facing back at it only when it lies in the point's
+/// own surface: `at()`, where the primitive is (a disk's centre, a triangle's point nearest
+/// the ray's origin), at most `FACING_TAN` steep over the tangent plane or lower than the
+/// own-surface height plus `FACING_LIFT · rad(p)`. Across a narrow groove the facing wall
+/// stands over the point.
 #[inline(always)]
-fn own_patch(ray: &Ray, t: f32, nq: Vec3) -> bool {
-    near_self(ray, t) && ray.n_self.dot(nq).abs() > SELF_COS
+fn own_patch(ray: &Ray, t: f32, nq: Vec3, at: impl FnOnce() -> Vec3) -> bool {
+    if !near_self(ray, t) {
+        return false;
+    }
+    let cos = ray.n_self.dot(nq);
+    if cos > SELF_COS {
+        return true;
+    }
+    if !(cos < -SELF_COS) {
+        return false;
+    }
+    let v = at() - ray.o;
+    let h = v.dot(ray.n_self);
+    let flat2 = (v.length_squared() - h * h).max(0.0);
+    h <= ray.h_self + FACING_LIFT * ray.r_self || h * h <= FACING_TAN * FACING_TAN * flat2
 }
+
 /// An oriented disk (32 bytes).
 #[derive(Debug, Clone, Copy)]
 #[repr(C)]
@@ -69,7 +96,9 @@ impl Primitive for Surfel {
         if q.length_squared() > self.r2 {
             return None;
         }
-        if (denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r)) || own_patch(ray, t, self.n) {
+        if (denom > 0.0 && t < BACK_NEAR * (ray.r_self + self.r))
+            || own_patch(ray, t, self.n, || self.c)
+        {
             ray.discard();
             return None;
         }
@@ -98,6 +127,48 @@ pub(crate) struct Triangle {
     pub v0: Vec3,
     pub e1: Vec3,
     pub e2: Vec3,
+}
+
+impl Triangle {
+    /// The point of the triangle nearest `p` (by the Voronoi regions of its vertices, edges
+    /// and face).
+    fn nearest(&self, p: Vec3) -> Vec3 {
+        let (a, ab, ac) = (self.v0, self.e1, self.e2);
+        let ap = p - a;
+        let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+        if d1 <= 0.0 && d2 <= 0.0 {
+            return a;
+        }
+        let bp = ap - ab;
+        let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+        if d3 >= 0.0 && d4 <= d3 {
+            return a + ab;
+        }
+        let vc = d1 * d4 - d3 * d2;
+        if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+            return a + ab * (d1 / (d1 - d3));
+        }
+        let cp = ap - ac;
+        let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+        if d6 >= 0.0 && d5 <= d6 {
+            return a + ac;
+        }
+        let vb = d5 * d2 - d1 * d6;
+        if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+            return a + ac * (d2 / (d2 - d6));
+        }
+        let va = d3 * d6 - d5 * d4;
+        if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
+            return a + ab + (ac - ab) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+        }
+        // Inside the face; the denominator is the squared area, positive for a triangle the
+        // builder kept.
+        let den = va + vb + vc;
+        if !(den > 0.0) {
+            return a;
+        }
+        a + ab * (vb / den) + ac * (vc / den)
+    }
 }
 
 impl Primitive for Triangle {
@@ -130,7 +201,8 @@ impl Primitive for Triangle {
         if !(t > 0.0 && t < t_hi) {
             return None;
         }
-        if near_self(ray, t) && own_patch(ray, t, self.e1.cross(self.e2).normalize_or_zero()) {
+        let nq = self.e1.cross(self.e2).normalize_or_zero();
+        if own_patch(ray, t, nq, || self.nearest(ray.o)) {
             ray.discard();
             return None;
         }
@@ -189,5 +261,27 @@ mod tests {
         assert_eq!(t.hit(&from_above, 9.0), Some(3.0));
         let miss = Ray::new(Vec3::new(1.5, 1.5, 0.0), Vec3::Z, 0.0);
         assert_eq!(t.hit(&miss, 9.0), None);
+    }
+
+    #[test]
+    fn nearest_point_of_a_triangle_in_each_region() {
+        let t = Triangle {
+            v0: Vec3::ZERO,
+            e1: Vec3::X,
+            e2: Vec3::Y,
+        };
+        let cases = [
+            (Vec3::new(0.2, 0.3, 5.0), Vec3::new(0.2, 0.3, 0.0)),
+            (Vec3::new(-1.0, -2.0, 1.0), Vec3::ZERO),
+            (Vec3::new(3.0, -1.0, 0.0), Vec3::X),
+            (Vec3::new(-1.0, 4.0, 0.0), Vec3::Y),
+            (Vec3::new(0.5, -1.0, 2.0), Vec3::new(0.5, 0.0, 0.0)),
+            (Vec3::new(-1.0, 0.25, 0.0), Vec3::new(0.0, 0.25, 0.0)),
+            (Vec3::new(1.0, 1.0, -3.0), Vec3::new(0.5, 0.5, 0.0)),
+        ];
+        for (p, want) in cases {
+            let got = t.nearest(p);
+            assert!(got.distance(want) < 1e-6, "{p}: {got} against {want}");
+        }
     }
 }
