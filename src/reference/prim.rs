@@ -131,7 +131,8 @@ pub(crate) struct Triangle {
 
 impl Triangle {
     /// The point of the triangle nearest `p` (by the Voronoi regions of its vertices, edges
-    /// and face).
+    /// and face). `synth` has its own in f64: the ground truth shares no code with the
+    /// reference it checks.
     fn nearest(&self, p: Vec3) -> Vec3 {
         let (a, ab, ac) = (self.v0, self.e1, self.e2);
         let ap = p - a;
