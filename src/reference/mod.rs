@@ -34,10 +34,10 @@
 //!    wall of a crease) and is kept. A surface facing back (`n_q·n_p < −0.5`) is ignored only
 //!    where it lies in the point's own surface (a neighbour whose estimated normal flipped):
 //!    across a groove narrower than `2·rad(p)` the facing wall stands steeply over the
-//!    tangent plane and is kept. The same holds at any distance for
-//!    such a surface lower over the tangent plane than the scan's own-surface height
-//!    ([`residual::own_heights`], [`Scene::set_self_height`]): the separation measured
-//!    between overlapping scans, which a grazing ray meets far beyond `2·rad(p)`.
+//!    tangent plane and is kept. The same holds at any distance for such a surface lower over
+//!    the tangent plane than the scan's own-surface height ([`residual::own_heights`],
+//!    [`Scene::set_self_height`]): the separation measured between overlapping scans, which a
+//!    grazing ray meets far beyond `2·rad(p)`.
 //!
 //! Each ray that had a hit discarded by these rules is counted per point
 //! ([`Reference::self_hits`], the `self_hits` column of the reference files): a large share
@@ -258,9 +258,9 @@ impl SceneBuilder {
     /// A triangle's front is the side that `fronts` (one direction per vertex: towards the
     /// sensor that sampled it, or its normal) points to when given, else the side from which
     /// its winding is counter-clockwise: the own-patch rule treats a surface facing the query
-    /// point differently from one facing its way. Triangles with a non-finite vertex or zero area are skipped and counted. Returns the
-    /// number added; errors on an index past the vertices, a normal count that is not the
-    /// vertex count, or an unusable pose.
+    /// point differently from one facing its way. Triangles with a non-finite vertex or zero
+    /// area are skipped and counted. Returns the number added; errors on an index past the
+    /// vertices, a count of `fronts` that is not the vertex count, or an unusable pose.
     pub fn add_triangles(
         &mut self,
         name: &str,
@@ -302,7 +302,7 @@ impl SceneBuilder {
         self.tris.reserve(tris.len());
         for t in tris {
             let [a, b, c] = t.map(|i| v[i as usize]);
-            // The pose is rigid, so the winding's side is decided in local coordinates.
+            // Decided in local coordinates, where the fronts are given (the pose is rigid).
             let back = fronts.is_some_and(|n| {
                 let [la, lb, lc] = t.map(|i| vertices[i as usize]);
                 let sum: Vec3 = t.iter().map(|&i| n[i as usize]).sum();
