@@ -33,9 +33,10 @@ fn near_self(ray: &Ray, t: f32) -> bool {
 /// primitive facing it can still be a mis-oriented sample of its own surface.
 pub(crate) const FACING_TAN: f32 = 0.577;
 /// Height over the tangent plane, in `rad(p)`, below which a primitive facing the query point
-/// is its own surface wherever it lies: the primitive through the point itself, its front
-/// turned away by a normal or winding that disagrees with the point's.
-pub(crate) const FACING_LIFT: f32 = 0.1;
+/// is its own surface wherever it lies: nearer than half a sample spacing the sampling cannot
+/// tell two surfaces apart (the triangle through the point itself with its front turned by
+/// normals that disagree, the other side of a sheet seen from both sides).
+pub(crate) const FACING_LIFT: f32 = 0.5;
 
 /// Is a hit at distance `t` on a surface of unit normal `nq` the query point's own patch? A
 /// surface facing the point's way is; one facing back at it only when it lies in the point's
