@@ -14,8 +14,9 @@ pub(crate) const BACK_NEAR: f32 = 2.0;
 /// the query point's normal (`n_q·n_p > SELF_COS`; facing back, see [`own_patch`]) is the
 /// query point's own sampled surface — a neighbour tilted by normal error or noise, the
 /// co-located samples of another scan a registration residual lifts above it, a grid
-/// triangle cutting the corner of a crease — and is ignored. A real occluder that close faces across (a wall in a crease),
-/// and is kept. See the module documentation of `reference` for how it was chosen.
+/// triangle cutting the corner of a crease — and is ignored. A real occluder that close
+/// faces across (a wall in a crease), and is kept. See the module documentation of
+/// `reference` for how it was chosen.
 pub(crate) const SELF_NEAR: f32 = 2.0;
 /// Cosine of the largest angle between the query point's normal and a surface taken as its
 /// own (60°).
