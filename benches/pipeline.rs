@@ -125,6 +125,7 @@ fn main() {
             dmax: 10.0,
             border_px: 64.0,
             spacing: 0.04,
+            largest_all_round: false,
         },
     );
     let cells = view_cells(&views, &scans);
@@ -137,6 +138,7 @@ fn main() {
             dmax: 10.0,
             border_px: 64.0,
             spacing: 0.04,
+            largest_all_round: false,
         };
         let (own, _) = views[0].point_ssao();
         let (t, (_, st)) = best_of(3, || {

@@ -215,6 +215,12 @@ pub fn wrap_angle(a: f32) -> f32 {
 }
 
 impl Projection {
+    /// Whether the map reaches every azimuth around the sensor (a full-circle equirectangular
+    /// station): what the sensor saw, it saw in every direction.
+    pub fn all_round(&self) -> bool {
+        matches!(self.model, Model::Equirect { .. }) && self.wrap_x
+    }
+
     /// Which of the three models this is.
     pub fn sensor_model(&self) -> SensorModel {
         match self.model {

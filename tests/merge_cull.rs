@@ -54,6 +54,7 @@ fn check(offset: DVec3, model: SensorModel) {
             dmax: 20.0,
             border_px: 16.0,
             spacing: 0.04,
+            largest_all_round: false,
         };
         let packed = view_maps(&views, &mp);
         let cells = view_cells(&views, &scans);

@@ -105,6 +105,10 @@ pub struct MergeParams {
     pub border_px: f32,
     /// `s = κ·t_max` of the spacing weight (metres; 0 = off).
     pub spacing: f32,
+    /// A point matched by views whose maps cover every direction around their sensors takes
+    /// the largest of those views' values instead of the weighted average (set for plain
+    /// ambient occlusion by the far-field sweeps; `docs/design.md`, "Lower bounds at ∞").
+    pub largest_all_round: bool,
 }
 
 #[cfg(test)]
@@ -118,6 +122,7 @@ impl MergeParams {
             dmax: 0.0,
             border_px,
             spacing: 0.0,
+            largest_all_round: false,
         }
     }
 }
@@ -148,12 +153,19 @@ impl std::ops::AddAssign for MergeStats {
 /// Per-point running sums of the merge of one scan (eq. 8): Σ SSAO·w and Σ w over the views
 /// added so far. Views may be added one at a time (loaded on demand) in any grouping; adding
 /// them in the same order gives bit-identical sums.
+///
+/// With [`MergeParams::largest_all_round`] a point that an all-round view matched holds
+/// instead the largest such view's value in `num` and [`BOUND`] in `den`; the sums of other
+/// views are then dropped, whichever came first.
 #[derive(Debug, Clone)]
 pub struct Accum {
     num: Vec<f32>,
     den: Vec<f32>,
     stats: MergeStats,
 }
+
+/// `den` of a point whose `num` is the largest lower bound (a value no weight sum takes).
+const BOUND: f32 = -1.0;
 
 impl Accum {
     /// Empty sums for `n` points.
@@ -165,20 +177,23 @@ impl Accum {
         }
     }
 
-    /// The merged AO: Σ SSAO·w / Σ w, or the point's own SSAO (counted) where Σ w = 0.
+    /// The merged AO: Σ SSAO·w / Σ w (or the largest lower bound), or the point's own SSAO
+    /// (counted) where Σ w = 0.
     pub fn finish(self, own: &[f32]) -> (Vec<f32>, MergeStats) {
         let mut st = self.stats;
-        let weighed = |n: f32, d: f32| d > 0.0 && n.is_finite();
+        let weighed = |n: f32, d: f32| (d > 0.0 || d == BOUND) && n.is_finite();
         let out = self
             .num
             .par_iter()
             .zip(&self.den)
             .zip(own)
             .map(|((&n, &d), &o)| {
-                if weighed(n, d) {
-                    (n / d).clamp(0.0, 1.0)
-                } else {
+                if !weighed(n, d) {
                     o
+                } else if d == BOUND {
+                    n.clamp(0.0, 1.0)
+                } else {
+                    (n / d).clamp(0.0, 1.0)
                 }
             })
             .collect();
@@ -226,6 +241,7 @@ pub fn accumulate(
     let relm = v.pose.inverse() * t.pose;
     let rel = Affine3A::from_mat4(relm.as_mat4());
     let b = (relm * t.proj.sensor_homogeneous().as_dvec4()).as_vec4();
+    let bound = prm.largest_all_round && v.proj.all_round();
     const CHUNK: usize = 8192;
     let m = v.maps;
     // Cells of the target that may hold a partner in this view (all, for its own view): near
@@ -251,7 +267,11 @@ pub fn accumulate(
                  den: &mut [f32],
                  st: &mut MergeStats| {
         st.point_views += 1;
+        if den[k] == BOUND && !bound {
+            return;
+        }
         let rad_i = t.radii[pi];
+        let (mut bn, mut bd) = (0.0f32, 0.0f32);
         for dy in -half..=half {
             for dx in -half..=half {
                 let Some(idx) = v.proj.pixel_at(cx + dx, cy + dy) else {
@@ -272,9 +292,20 @@ pub fn accumulate(
                     * w_border(rest[5], prm.border_px, rad_i, rad_ij)
                     * w_spacing(rad_ij, prm.spacing);
                 st.samples_kept += 1;
-                num[k] += rest[4] * w;
-                den[k] += w;
+                if bound {
+                    bn += rest[4] * w;
+                    bd += w;
+                } else {
+                    num[k] += rest[4] * w;
+                    den[k] += w;
+                }
             }
+        }
+        // Weights of zero (a pixel at the map's border) leave the point to the other views.
+        if bound && bd > 0.0 {
+            let a = bn / bd;
+            num[k] = if den[k] == BOUND { num[k].max(a) } else { a };
+            den[k] = BOUND;
         }
     };
     let st = acc
@@ -445,6 +476,7 @@ mod tests {
             dmax: 4.0,
             border_px: 64.0,
             spacing: 0.0,
+            largest_all_round: false,
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao0, &b0, &prm);
         let maps2 = ViewMaps::new(&proj, &g, &ao1, &b1, &prm);
@@ -489,6 +521,7 @@ mod tests {
                 dmax: 0.0,
                 border_px: 64.0,
                 spacing,
+                largest_all_round: false,
             };
             let m0 = ViewMaps::new(&proj, &sharp, &[0.2; 9], &b, &prm);
             let m1 = ViewMaps::new(&proj, &coarse, &[0.8; 9], &b, &prm);
@@ -534,6 +567,7 @@ mod tests {
             dmax: 4.0,
             border_px: 64.0,
             spacing: 0.0,
+            largest_all_round: false,
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao, &b, &prm);
         let v = [view(&proj, &maps1, DMat4::IDENTITY)];
@@ -567,6 +601,7 @@ mod tests {
             dmax: 0.0,
             border_px: 64.0,
             spacing: 0.0,
+            largest_all_round: false,
         };
         let maps1 = ViewMaps::new(&proj, &g, &ao, &b, &prm);
         let v = [view(&proj, &maps1, DMat4::IDENTITY)];

@@ -90,7 +90,7 @@ pub fn compute(scans: &[Scan], prm: &ComputeParams, obs: &dyn Observer) -> Resul
         &sp,
         obs,
     )?;
-    let mplan = merge_plan(&mut store, &need, prm, &cat, sp.tmax, &mut note)?;
+    let mplan = merge_plan(&mut store, &need, prm, &cat, &sp, &mut note)?;
     let partner = |i: usize, j: usize| mplan.meets(i, j);
     let job = MergeJob {
         cat: &cat.scans,
@@ -200,9 +200,10 @@ fn merge_plan(
     need: &[bool],
     prm: &ComputeParams,
     cat: &Catalog,
-    tmax: f32,
+    sp: &SsaoParams,
     note: &mut String,
 ) -> Result<MergePlan> {
+    let tmax = sp.tmax;
     let mut sums: Vec<Option<Summary>> = vec![None; need.len()];
     for i in (0..need.len()).filter(|&i| need[i]) {
         sums[i] = Some(store.summary(i)?);
@@ -213,7 +214,7 @@ fn merge_plan(
         .filter(|s| !s.ortho)
         .map(|s| (s.depth_min, s.depth_max))
         .collect();
-    let mp = plan::merge_params(prm, &ranges, tmax, note);
+    let mp = plan::merge_params(prm, &ranges, sp, note);
     let mut times: Vec<(String, f64)> = Vec::new();
     for s in sums.iter().flatten() {
         for (k, t) in &s.times {
@@ -460,6 +461,7 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
             dmax: 0.0,
             border_px: prm.border_px,
             spacing: 0.0,
+            largest_all_round: false,
         },
         union: None,
         defaults_note: note,
@@ -510,7 +512,7 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
         return Ok(out);
     }
     let mut note = std::mem::take(&mut out.defaults_note);
-    let mplan = merge_plan(&mut store, &need, prm, &cat, sp.tmax, &mut note)?;
+    let mplan = merge_plan(&mut store, &need, prm, &cat, &sp, &mut note)?;
     // The pair test holds what the merge needs of the occupied cells.
     cat.occupancy = Vec::new();
     out.defaults_note = note;
@@ -695,6 +697,7 @@ mod tests {
             dmax: 20.0,
             border_px: 64.0,
             spacing: 0.0,
+            largest_all_round: false,
         };
         let prm = ComputeParams::default();
         let near = union_params(&prm, &sp(0.4), &mp);

@@ -10,7 +10,7 @@ use crate::report::{CatalogScan, Plan};
 use crate::scan::occupancy::Occupancy;
 use crate::scan::Scan;
 use crate::site::Pairs;
-use crate::ssao::SsaoParams;
+use crate::ssao::{Estimator, SsaoParams};
 use crate::store::view_bytes;
 use glam::DVec3;
 
@@ -113,11 +113,11 @@ pub fn ssao_params(
 }
 
 /// The merge parameters of a run from the depth ranges of its views with a sensor position
-/// (`d_min`/`d_max` defaults) and its `tmax`, noting how they were derived.
+/// (`d_min`/`d_max` defaults) and its SSAO parameters, noting how they were derived.
 pub fn merge_params(
     prm: &ComputeParams,
     ranges: &[(f32, f32)],
-    tmax: f32,
+    sp: &SsaoParams,
     note: &mut String,
 ) -> MergeParams {
     let (mut dmin, dmax) = ranges.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), r| {
@@ -136,7 +136,8 @@ pub fn merge_params(
         dmin: prm.dmin.unwrap_or(dmin),
         dmax: prm.dmax.unwrap_or(dmax),
         border_px: prm.border_px,
-        spacing: prm.spacing_weight * tmax,
+        spacing: prm.spacing_weight * sp.tmax,
+        largest_all_round: sp.estimator == Estimator::Horizon && crate::ssao::farfield::applies(sp),
     }
 }
 

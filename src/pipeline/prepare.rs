@@ -162,6 +162,7 @@ mod tests {
             dmax: 10.0,
             border_px: 64.0,
             spacing: 0.0,
+            largest_all_round: false,
         };
         let m = store.maps(0, scan.pose, &prm).unwrap();
         assert_eq!(m.ao, v.ssao.ao);
