@@ -384,3 +384,36 @@ fn gentle_ridge_beside_floor_points_is_not_their_own_surface() {
     );
     assert!(bias.abs() <= 0.03, "union bias {bias}");
 }
+
+#[test]
+fn a_closed_room_reads_closed_at_infinity() {
+    // The analytic room (walls, floor, ceiling, a niche) from three stations: at t_max = ∞
+    // every direction is blocked, truth 0 everywhere. Rays that cross a surface where no view
+    // catches the crossing (at a crease, neighbouring pixels lie on different surfaces) end
+    // behind the walls in every view, and count as blocked.
+    let stations: Vec<Station> = [(1.0, 0.8), (-2.5, -1.5), (2.8, -2.0)]
+        .iter()
+        .map(|&(x, y)| Station::equirect(DVec3::new(x, y, 1.5), 0.3, 180, 90))
+        .collect();
+    let (u, _) = run(
+        &Scene::room(),
+        &stations,
+        0.2,
+        f32::INFINITY,
+        Occlusion::Union,
+        false,
+    );
+    for (k, s) in u.iter().enumerate() {
+        let mean = s.ao.iter().map(|&a| a as f64).sum::<f64>() / s.ao.len() as f64;
+        let open = s.ao.iter().filter(|&&a| a > 0.05).count();
+        eprintln!(
+            "station {k}: mean {mean:.5}, {open} of {} above 0.05",
+            s.ao.len()
+        );
+        assert!(mean < 0.002, "station {k}: mean AO {mean}");
+        assert!(
+            open * 200 < s.ao.len(),
+            "station {k}: {open} points above 0.05"
+        );
+    }
+}

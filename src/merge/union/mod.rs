@@ -301,6 +301,20 @@ impl Lens<'_> {
         }
     }
 
+    /// What the view says of the space at `q` (target frame), where a ray's march ends.
+    fn end_of(&self, q: Vec3, thickness: f32) -> End {
+        let Some((px, idx, d)) = self.spot(q).and_then(|s| self.pixel_of(s)) else {
+            return End::Unseen;
+        };
+        match self.at(px, idx, d) {
+            // The sensor found nothing along this line of sight.
+            None => End::Open,
+            Some(r) if r.s <= 0.25 * r.rad => End::Open,
+            Some(r) if r.s > solid_depth(thickness, self.pixel_size(d)) => End::Behind,
+            Some(_) => End::Unseen,
+        }
+    }
+
     /// Whether the view saw past `r`'s point in its pixel and the four neighbours.
     fn sees_through(&self, r: &Reading) -> bool {
         r.s < -2.0 * r.rad && self.neighbours_past(r) == 4
@@ -407,6 +421,17 @@ enum Run {
     /// Every sample is deep behind its pixel's stored surface ([`Seen::Deep`]), at an empty
     /// pixel or outside the map.
     DeepOrEmpty,
+}
+
+/// What a view says of the place where a ray's march ends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum End {
+    /// In front of what the view stored there, or on a line of sight that found nothing.
+    Open,
+    /// Behind a stored surface by more than the solid depth.
+    Behind,
+    /// Outside the view's frame, or within the solid depth.
+    Unseen,
 }
 
 /// Samples of a ray tested together by [`Lens::run`].
@@ -675,7 +700,7 @@ fn march(
             ahead: (usize::MAX, None),
         },
     );
-    let mut t_prev = 0.0f32;
+    let (mut t_prev, mut t_last) = (0.0f32, 0.0f32);
     for k in 0..steps {
         let t = t_at(k);
         let q = pt.p + omega * t;
@@ -731,12 +756,25 @@ fn march(
                 return tc;
             }
         }
+        t_last = t;
         if pt.bounds.left(q, omega) {
             break;
         }
         t_prev = t;
     }
+    if !prm.tmax.is_finite() && ends_enclosed(lenses, pt.p + omega * t_last, prm.thickness) {
+        return t_last;
+    }
     f32::INFINITY
+}
+
+/// Whether a ray whose march ended at `q` without a hit is enclosed all the same: every view
+/// holds `q` deep behind a surface it stored (the ray crossed one no view caught, as at the
+/// crease of two walls, where neighbouring pixels lie on different surfaces). Plain ambient
+/// occlusion then counts the ray blocked; a view that saw `q`'s space open, or whose frame
+/// misses it, leaves the ray open.
+fn ends_enclosed(lenses: &[Lens<'_>], q: Vec3, thickness: f32) -> bool {
+    !lenses.is_empty() && lenses.iter().all(|l| l.end_of(q, thickness) == End::Behind)
 }
 
 /// The hit view `l` (the `j`-th) reports on a ray between its previous sample (`before`, at
