@@ -100,6 +100,9 @@ pub struct ScanReport {
     pub no_ssao_sample: u64,
     /// Points whose merge weights summed to zero (kept their own SSAO).
     pub zero_merge_weight: u64,
+    /// Points given the largest value of the all-round stations that matched them instead of
+    /// the weighted average (plain ambient occlusion; `docs/design.md`).
+    pub merged_by_largest: u64,
     /// (point, view) pairs evaluated by the merge.
     pub point_views: u64,
     /// (point, view) pairs left out before projecting: no stored point of the view was near

@@ -152,6 +152,11 @@ fn all_round_stations_merge_plain_occlusion_by_their_largest_value() {
     mvao_ok(&args);
     let r = report(&out);
     assert_eq!(r["parameters"]["merge"]["largest_all_round"], true);
+    for s in r["scans"].as_array().unwrap() {
+        let (by_largest, points) = (s["merged_by_largest"].as_u64(), s["points"].as_u64());
+        // Every point seen by an all-round station (all of them, here) took the largest.
+        assert!(by_largest.unwrap() * 100 >= points.unwrap() * 95, "{s}");
+    }
     let acc = |k: &str, m: &str| r["accuracy"][k][m].as_f64().unwrap();
     let (single, merged) = (acc("ssao", "e_a"), acc("result", "e_a"));
     // Every station reads the colonnade darker than it is; the largest value is the nearest

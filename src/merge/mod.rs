@@ -139,6 +139,8 @@ pub struct MergeStats {
     pub culled: u64,
     /// Samples accepted by eq. 7.
     pub samples_kept: u64,
+    /// Points given the largest all-round view's value ([`MergeParams::largest_all_round`]).
+    pub largest: u64,
 }
 
 impl std::ops::AddAssign for MergeStats {
@@ -147,6 +149,7 @@ impl std::ops::AddAssign for MergeStats {
         self.point_views += o.point_views;
         self.culled += o.culled;
         self.samples_kept += o.samples_kept;
+        self.largest += o.largest;
     }
 }
 
@@ -203,6 +206,12 @@ impl Accum {
             .zip(&self.den)
             .zip(own)
             .filter(|((&n, &d), _)| !weighed(n, d))
+            .count() as u64;
+        st.largest += self
+            .num
+            .par_iter()
+            .zip(&self.den)
+            .filter(|(&n, &d)| d == BOUND && n.is_finite())
             .count() as u64;
         (out, st)
     }

@@ -271,6 +271,7 @@ impl Sink for Writer<'_> {
             normals: sum.normals.clone(),
             no_ssao_sample: m.no_sample,
             zero_merge_weight: m.stats.zero_weight,
+            merged_by_largest: m.stats.largest,
             point_views: m.stats.point_views,
             point_views_culled: m.stats.culled,
             ao_min: mn,
