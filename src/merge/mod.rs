@@ -200,19 +200,17 @@ impl Accum {
                 }
             })
             .collect();
-        st.zero_weight += self
+        let (zero, largest) = self
             .num
             .par_iter()
             .zip(&self.den)
-            .zip(own)
-            .filter(|((&n, &d), _)| !weighed(n, d))
-            .count() as u64;
-        st.largest += self
-            .num
-            .par_iter()
-            .zip(&self.den)
-            .filter(|(&n, &d)| d == BOUND && n.is_finite())
-            .count() as u64;
+            .map(|(&n, &d)| match (weighed(n, d), d == BOUND) {
+                (false, _) => (1u64, 0u64),
+                (true, bound) => (0, bound as u64),
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        st.zero_weight += zero;
+        st.largest += largest;
         (out, st)
     }
 }

@@ -10,7 +10,7 @@ use crate::report::{CatalogScan, Plan};
 use crate::scan::occupancy::Occupancy;
 use crate::scan::Scan;
 use crate::site::Pairs;
-use crate::ssao::{Estimator, SsaoParams};
+use crate::ssao::SsaoParams;
 use crate::store::view_bytes;
 use glam::DVec3;
 
@@ -137,7 +137,7 @@ pub fn merge_params(
         dmax: prm.dmax.unwrap_or(dmax),
         border_px: prm.border_px,
         spacing: prm.spacing_weight * sp.tmax,
-        largest_all_round: sp.estimator == Estimator::Horizon && crate::ssao::farfield::applies(sp),
+        largest_all_round: crate::ssao::uses_far_field(sp),
     }
 }
 

@@ -132,13 +132,18 @@ pub(crate) fn unmarchable(g: &GBuffer, proj: &Projection) -> Option<AoMap> {
     })
 }
 
+/// Whether [`compute`] gives the far-field sweeps' plain ambient occlusion for `p`.
+pub fn uses_far_field(p: &SsaoParams) -> bool {
+    p.estimator == Estimator::Horizon && farfield::applies(p)
+}
+
 /// Computes the AO map of a view with the chosen estimator, then blurs it.
 pub fn compute(g: &GBuffer, proj: &Projection, p: &SsaoParams) -> AoMap {
     let adaptive = p.sampling == Sampling::Adaptive;
     let mut map = match p.estimator {
         Estimator::Paper => paper::ssao(g, proj, p),
-        Estimator::Horizon if farfield::applies(p) && adaptive => multires::far_field(g, proj, p),
-        Estimator::Horizon if farfield::applies(p) => farfield::ssao(g, proj, p),
+        _ if uses_far_field(p) && adaptive => multires::far_field(g, proj, p),
+        _ if uses_far_field(p) => farfield::ssao(g, proj, p),
         Estimator::Horizon if adaptive => multires::ssao(g, proj, p),
         Estimator::Horizon => horizon::ssao(g, proj, p),
     };

@@ -174,6 +174,14 @@ struct Reading {
     px: (i64, i64),
 }
 
+impl Reading {
+    /// In front of the stored surface, or behind it by no more than its noise.
+    #[inline]
+    fn in_front(&self) -> bool {
+        self.s <= 0.25 * self.rad
+    }
+}
+
 impl Lens<'_> {
     /// Depth of the point stored at pixel `idx`, and its radius (`None`: empty).
     #[inline]
@@ -309,7 +317,7 @@ impl Lens<'_> {
         match self.at(px, idx, d) {
             // The sensor found nothing along this line of sight.
             None => End::Open,
-            Some(r) if r.s <= 0.25 * r.rad => End::Open,
+            Some(r) if r.in_front() => End::Open,
             Some(r) if r.s > solid_depth(thickness, self.pixel_size(d)) => End::Behind,
             Some(_) => End::Unseen,
         }
@@ -768,11 +776,9 @@ fn march(
     f32::INFINITY
 }
 
-/// Whether a ray whose march ended at `q` without a hit is enclosed all the same: every view
-/// holds `q` deep behind a surface it stored (the ray crossed one no view caught, as at the
-/// crease of two walls, where neighbouring pixels lie on different surfaces). Plain ambient
-/// occlusion then counts the ray blocked; a view that saw `q`'s space open, or whose frame
-/// misses it, leaves the ray open.
+/// Whether a ray that ended at `q` without a hit is enclosed all the same: every view holds `q`
+/// deep behind a stored surface (it crossed one no view caught, as at a crease, where
+/// neighbouring pixels lie on two surfaces). A view that saw `q` open, or misses it, does not.
 fn ends_enclosed(lenses: &[Lens<'_>], q: Vec3, thickness: f32) -> bool {
     !lenses.is_empty() && lenses.iter().all(|l| l.end_of(q, thickness) == End::Behind)
 }
@@ -798,8 +804,7 @@ fn candidate(
         (Probe::Deep, Probe::At(r)) if r.s < 0.0 => l.read_spot(spot)?,
         _ => return None,
     };
-    // In front of the stored surface, or behind it by no more than noise.
-    if c.s <= 0.25 * c.rad {
+    if c.in_front() {
         return None;
     }
     // The previous sample read again where only its side was kept (the same point, so the
