@@ -2,12 +2,15 @@
 # Scores `mvao reference` (surfels and grid triangles) against the exact ground truth of the
 # built-in mesh scenes, noise-free and with range noise, registration error and estimated
 # normals; the figures of docs/reference.md. Usage: scripts/reference_truth.sh [OUT_DIR]
-# Environment: WIDTH HEIGHT (equirect map, default 360 x 180), RAYS (default 128, the same
-# for the truth so both cast the same directions when normals are exact).
+# Environment: WIDTH HEIGHT (equirect map of the buildings, default 720 x 360), RELIEF_WIDTH
+# RELIEF_HEIGHT (perspective views of the relief, default 480 x 360), RAYS (default 128, the
+# same for the truth so both cast the same directions when normals are exact).
 set -euo pipefail
 out=${1:-reference-truth}
-W=${WIDTH:-360}
-H=${HEIGHT:-180}
+W=${WIDTH:-720}
+H=${HEIGHT:-360}
+RW=${RELIEF_WIDTH:-480}
+RH=${RELIEF_HEIGHT:-360}
 R=${RAYS:-128}
 cargo build --profile test --example reference_truth
 bin=target/debug/examples/reference_truth
@@ -31,9 +34,9 @@ mkdir -p "$out"
   done
   for t in 0.005 inf; do
     for g in surfels mesh; do
-      run "relief t_max=$t $g exact" relief model=perspective width=240 height=180 tmax="$t" geometry="$g"
+      run "relief t_max=$t $g exact" relief model=perspective width="$RW" height="$RH" tmax="$t" geometry="$g"
     done
-    run "relief t_max=$t surfels noise 0.05mm no normals" relief model=perspective width=240 \
-      height=180 tmax="$t" noise=0.00005 normals=0
+    run "relief t_max=$t surfels noise 0.05mm no normals" relief model=perspective width="$RW" \
+      height="$RH" tmax="$t" noise=0.00005 normals=0
   done
 } | tee "$out/table.txt"
