@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{mvao_ok, report};
+use common::{mvao_ok, report, synth_site};
 use glam::DVec3;
 use mvao::synth::{scan_scene, Scene, Station};
 use mvao::testing::gbuffer::EMPTY;
@@ -115,40 +115,29 @@ fn all_round_views_give_their_largest_value_whatever_the_order() {
 fn all_round_stations_merge_plain_occlusion_by_their_largest_value() {
     let tmp = tempfile::tempdir().unwrap();
     let site = tmp.path().join("colonnade");
-    mvao_ok(&[
-        "synth",
-        "--scene",
+    let files = synth_site(
+        &site,
         "colonnade",
-        "--stations",
-        "3",
-        "--width",
-        "240",
-        "--height",
-        "120",
-        "--no-normals",
-        "--reference-rays",
-        "32",
-        "--reference-tmax",
-        "inf",
-        "--reference-falloff",
-        "none",
-        "-o",
-        site.to_str().unwrap(),
-    ]);
+        3,
+        240,
+        120,
+        &[
+            "--no-normals",
+            "--reference-rays",
+            "32",
+            "--reference-tmax",
+            "inf",
+            "--reference-falloff",
+            "none",
+        ],
+    );
     let out = tmp.path().join("out");
     let truth = site.join("reference-mesh");
     let mut args = vec!["merge", "-q", "--no-preview", "--radius", "0.2"];
     args.extend(["--tmax", "inf", "--falloff", "none"]);
     args.extend(["--reference", truth.to_str().unwrap()]);
     args.extend(["-o", out.to_str().unwrap()]);
-    let files: Vec<String> = (0..3)
-        .map(|i| {
-            site.join(format!("station_00{i}.ply"))
-                .display()
-                .to_string()
-        })
-        .collect();
-    args.extend(files.iter().map(String::as_str));
+    args.extend(files.iter().map(|f| f.to_str().unwrap()));
     mvao_ok(&args);
     let r = report(&out);
     assert_eq!(r["parameters"]["merge"]["largest_all_round"], true);

@@ -5,30 +5,26 @@
 
 mod common;
 
-use common::{mvao_ok, report};
+use common::{mvao_ok, report, synth_site};
 
 #[test]
 fn sharp_views_outweigh_coarse_ones() {
     let tmp = tempfile::tempdir().unwrap();
     let site = tmp.path().join("colonnade");
-    mvao_ok(&[
-        "synth",
-        "--scene",
+    let files = synth_site(
+        &site,
         "colonnade",
-        "--stations",
-        "3",
-        "--width",
-        "360",
-        "--height",
-        "180",
-        "--no-normals",
-        "--reference-rays",
-        "64",
-        "--reference-tmax",
-        "0.4",
-        "-o",
-        site.to_str().unwrap(),
-    ]);
+        3,
+        360,
+        180,
+        &[
+            "--no-normals",
+            "--reference-rays",
+            "64",
+            "--reference-tmax",
+            "0.4",
+        ],
+    );
     let truth = site.join("reference-mesh");
     let work = tmp.path().join("work");
     let run = |name: &str, extra: &[&str]| {
@@ -54,9 +50,7 @@ fn sharp_views_outweigh_coarse_ones() {
             o,
         ];
         args.extend_from_slice(extra);
-        let files = (0..3).map(|i| site.join(format!("station_{i:03}.ply")));
-        let files: Vec<String> = files.map(|f| f.to_str().unwrap().to_owned()).collect();
-        args.extend(files.iter().map(String::as_str));
+        args.extend(files.iter().map(|f| f.to_str().unwrap()));
         mvao_ok(&args);
         report(&out)
     };

@@ -17,7 +17,12 @@ pub fn fixture(rel: &str) -> PathBuf {
 
 /// All `*.ply` files of a fixture folder, sorted.
 pub fn plys(dir: &str) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(fixture(dir))
+    ply_files(&fixture(dir))
+}
+
+/// All `*.ply` files of `dir`, sorted.
+pub fn ply_files(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "ply"))
@@ -122,26 +127,26 @@ pub fn mvao_ok(args: &[&str]) -> String {
 /// `mvao synth` of the room with `stations` equirect stations of `w × h` into `dir`; the
 /// station files, sorted.
 pub fn synth_room(dir: &Path, stations: u32, w: u32, h: u32) -> Vec<PathBuf> {
-    mvao_ok(&[
-        "synth",
-        "--scene",
-        "room",
-        "--stations",
-        &stations.to_string(),
-        "--width",
-        &w.to_string(),
-        "--height",
-        &h.to_string(),
-        "-o",
-        dir.to_str().unwrap(),
-    ]);
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "ply"))
-        .collect();
-    v.sort();
-    v
+    synth_site(dir, "room", stations, w, h, &[])
+}
+
+/// `mvao synth --scene SCENE` with `stations` stations of `w × h` and the `extra` options
+/// into `dir`; the station files, sorted.
+pub fn synth_site(
+    dir: &Path,
+    scene: &str,
+    stations: u32,
+    w: u32,
+    h: u32,
+    extra: &[&str],
+) -> Vec<PathBuf> {
+    let (stations, w, h) = (stations.to_string(), w.to_string(), h.to_string());
+    let mut args = vec!["synth", "--scene", scene, "--stations", &stations];
+    args.extend(["--width", &w, "--height", &h]);
+    args.extend_from_slice(extra);
+    args.extend(["-o", dir.to_str().unwrap()]);
+    mvao_ok(&args);
+    ply_files(dir)
 }
 
 /// A hemisphere of points around a scanner at the origin (radius 3 m, below and around it).
