@@ -117,6 +117,40 @@ fn non_finite_points_are_skipped_counted_and_never_written() {
     assert_eq!(std::fs::read(&p).unwrap(), before, "input modified");
 }
 
+/// A face that names a vertex the file does not have (beyond the count, negative) is dropped
+/// with a warning, so the output is a PLY that viewers load; the good faces stay.
+#[test]
+fn faces_naming_missing_vertices_are_dropped_with_a_warning() {
+    let d = tempfile::tempdir().unwrap();
+    let pts = dome(2000);
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
+         property float z\nelement face 3\nproperty list uchar int vertex_indices\nend_header\n",
+        pts.len()
+    );
+    for p in &pts {
+        text += &format!("{} {} {}\n", p[0], p[1], p[2]);
+    }
+    text += "3 0 1 2\n3 0 1 2000\n3 -1 1 2\n";
+    let p = d.path().join("faces.ply");
+    std::fs::write(&p, &text).unwrap();
+    let out = d.path().join("out");
+    let r = mvao(&["merge", "-q", "-o", &s(&out), &s(&p), "--radius", "0.3"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        err.contains("faces.ply: 2 faces refer to vertices the file does not have"),
+        "{err}"
+    );
+    let o = PlyFile::from_path(&out.join("faces.mvao.ply")).unwrap();
+    assert_eq!(o.header.elements[0].count, 2000);
+    assert_eq!(
+        o.list_column("face", "vertex_indices").unwrap(),
+        vec![vec![0, 1, 2]]
+    );
+    assert_eq!(std::fs::read_to_string(&p).unwrap(), text, "input modified");
+}
+
 /// NaN normals and colours of the input are written as 0 with a warning: no NaN reaches an
 /// output, and the AO does not suffer (normals are estimated anew).
 #[test]

@@ -5,7 +5,7 @@
 //! top of the file's own poses.
 
 use super::align;
-use super::source::{self, InputFile};
+use super::source::{self, Container, InputFile};
 use crate::error::{Error, Result};
 use crate::scan::Scan;
 use glam::{DMat3, DMat4, Vec3};
@@ -467,6 +467,21 @@ impl Placer {
                     f.path.display(),
                     s.skipped_nonfinite
                 ));
+            }
+            if let Container::Ply(ply) = &f.container {
+                let bad = ply.faces_out_of_range();
+                if bad > 0 {
+                    let (faces, refer) = if bad == 1 {
+                        ("face", "refers")
+                    } else {
+                        ("faces", "refer")
+                    };
+                    warnings.push(format!(
+                        "{}: {bad} {faces} {refer} to vertices the file does not have; dropped \
+                         from the output",
+                        f.path.display()
+                    ));
+                }
             }
             let (rigid, stretch) = align::split_scale(m);
             if (stretch - DMat3::IDENTITY).abs_diff_eq(DMat3::ZERO, 1e-12) {

@@ -172,7 +172,7 @@ pub fn write(
                     per_vertex[vi as usize] = ao[i][k];
                 }
                 let kept: PlyFile;
-                let ply: &PlyFile = if s.skipped_nonfinite > 0 {
+                let ply: &PlyFile = if s.skipped_nonfinite > 0 || ply.faces_out_of_range() > 0 {
                     let mut keep = vec![false; s.vertex_count];
                     for &vi in &s.source_index {
                         keep[vi as usize] = true;

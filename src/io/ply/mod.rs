@@ -162,6 +162,25 @@ impl PlyFile {
         self.map_lists(element, prop, |v| Some(to_u32(v).unwrap_or(u32::MAX)))
     }
 
+    /// Faces (rows of a `face` element's `vertex_indices` or `vertex_index` list) that refer to
+    /// a vertex the file does not have: negative, fractional or beyond the vertex count.
+    /// Writing drops them, as it drops faces that lose a vertex.
+    pub fn faces_out_of_range(&self) -> usize {
+        let n = self
+            .element("vertex")
+            .and_then(|i| self.header.elements.get(i))
+            .map_or(0, |e| e.count);
+        let lists = self
+            .list_indices("face", "vertex_indices")
+            .or_else(|| self.list_indices("face", "vertex_index"));
+        lists.map_or(0, |faces| {
+            faces
+                .iter()
+                .filter(|f| f.iter().any(|&v| v as usize >= n))
+                .count()
+        })
+    }
+
     /// The items of a list property through `item`, one `Vec` per row; `None` if missing,
     /// not a list, unreadable, or `item` refuses a value.
     fn map_lists(
