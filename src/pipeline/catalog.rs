@@ -1,4 +1,4 @@
-//! The catalog stage: every input read once, one file at a time, for what the plan needs —
+//! The catalog stage: every input read once, small files side by side, for what the plan needs —
 //! counts, world bounds, occupied cells, a fingerprint of each scan's local data and the
 //! sample the default radius is taken from. Also where the later stages get the scans again:
 //! [`Inputs`], over the input files or over scans in memory.
@@ -258,49 +258,51 @@ pub fn from_files<'a>(
     let mut max_file_bytes = 0u64;
     let mut held: HashMap<usize, (Stat, Vec<Scan>, u64)> = HashMap::new();
     let mut holding = !cfg.dry_run;
-    for fi in 0..placer.len() {
-        let path = &cfg.scans[fi];
-        // A file modified within the clock's resolution could change again unseen: read anew.
-        let before = holding
-            .then(|| manifest::stat(path).ok())
-            .flatten()
-            .filter(|st| !st.is_racy(FileTime::now()));
-        let mut pf = placer.open(fi)?;
-        warnings.append(&mut pf.warnings);
-        warnings.extend(nonfinite_warning(&pf, path));
-        max_file_bytes = max_file_bytes.max(std::fs::metadata(path).map_or(0, |m| m.len()));
-        for (k, s) in pf.scans.iter().enumerate() {
-            if s.is_empty() {
-                return Err(Error::scan(
-                    path.display().to_string(),
-                    format!("scan {} has no point with finite coordinates", s.name),
-                ));
+    let mut start = 0;
+    while start < placer.len() {
+        let held_bytes: u64 = held.values().map(|h| h.2).sum();
+        let end = window_end(&cfg.scans, start, budget.saturating_sub(held_bytes));
+        let window = read_window(placer, &cfg.scans, start..end, holding);
+        for (fi, (before, pf)) in (start..end).zip(window) {
+            let path = &cfg.scans[fi];
+            let mut pf = pf?;
+            warnings.append(&mut pf.warnings);
+            warnings.extend(nonfinite_warning(&pf, path));
+            max_file_bytes = max_file_bytes.max(std::fs::metadata(path).map_or(0, |m| m.len()));
+            for (k, s) in pf.scans.iter().enumerate() {
+                if s.is_empty() {
+                    return Err(Error::scan(
+                        path.display().to_string(),
+                        format!("scan {} has no point with finite coordinates", s.name),
+                    ));
+                }
+                crate::io::source::check_usable(s, path)?;
+                let c = entry(s, fi, k, true);
+                occupancy.push(Occupancy::of(s, bounds_diagonal(&c)));
+                samples.push(sample(s));
+                if cfg.compute.radius.is_none() {
+                    spacings.push((crate::radius::scan_spacing(&s.points), s.len()));
+                }
+                cat.push(c);
             }
-            crate::io::source::check_usable(s, path)?;
-            let c = entry(s, fi, k, true);
-            occupancy.push(Occupancy::of(s, bounds_diagonal(&c)));
-            samples.push(sample(s));
-            if cfg.compute.radius.is_none() {
-                spacings.push((crate::radius::scan_spacing(&s.points), s.len()));
+            let wanted = cfg.only.is_empty() || pf.scans.iter().any(|s| cfg.only.contains(&s.name));
+            holding &= before.is_some() && wanted;
+            if let Some(st) = before.filter(|_| holding) {
+                let bytes: u64 = pf.scans.iter().map(scan_bytes).sum();
+                let largest = cat
+                    .iter()
+                    .map(|c| crate::store::view_bytes(c.map_pixels, c.points as u64))
+                    .max();
+                let floor = super::plan::floor(max_file_bytes, largest.unwrap_or(0));
+                let held_bytes: u64 = held.values().map(|h| h.2).sum();
+                holding = held_bytes + bytes + 2 * floor <= budget;
+                if holding {
+                    held.insert(fi, (st, pf.scans, bytes));
+                }
             }
-            cat.push(c);
+            obs.advance(1);
         }
-        let wanted = cfg.only.is_empty() || pf.scans.iter().any(|s| cfg.only.contains(&s.name));
-        holding &= before.is_some() && wanted;
-        if let Some(st) = before.filter(|_| holding) {
-            let bytes: u64 = pf.scans.iter().map(scan_bytes).sum();
-            let largest = cat
-                .iter()
-                .map(|c| crate::store::view_bytes(c.map_pixels, c.points as u64))
-                .max();
-            let floor = super::plan::floor(max_file_bytes, largest.unwrap_or(0));
-            let held_bytes: u64 = held.values().map(|h| h.2).sum();
-            holding = held_bytes + bytes + 2 * floor <= budget;
-            if holding {
-                held.insert(fi, (st, pf.scans, bytes));
-            }
-        }
-        obs.advance(1);
+        start = end;
     }
     obs.done("catalog", t0.elapsed().as_secs_f64());
     let input_bytes = cfg
@@ -325,6 +327,50 @@ pub fn from_files<'a>(
         held,
     };
     Ok((catalog, files))
+}
+
+/// Bytes of one file as the catalog holds it while reading: the parsed file and its scans
+/// ([`super::plan::floor`] counts five times the file).
+const READ_FACTOR: u64 = 5;
+
+/// The end of the window of files read side by side from `start`: one file per thread while
+/// twice their parsed bytes fit in `room`, and always at least `start` itself (small files,
+/// the common case of many scans, take both cores; one large file is read alone).
+fn window_end(paths: &[PathBuf], start: usize, room: u64) -> usize {
+    let size = |fi: usize| std::fs::metadata(&paths[fi]).map_or(u64::MAX / 4, |m| m.len());
+    let threads = rayon::current_num_threads().max(1);
+    let mut end = start + 1;
+    let mut bytes = size(start);
+    while end < paths.len() && end - start < threads {
+        let more = bytes.saturating_add(size(end));
+        if more.saturating_mul(2 * READ_FACTOR) > room {
+            break;
+        }
+        bytes = more;
+        end += 1;
+    }
+    end
+}
+
+/// Reads the files of `range` side by side, each with its identity taken before it was read
+/// when `stat` (`None` for a file modified within the clock's resolution, which could change
+/// again unseen: it is read anew later). In input order; each file's own error.
+fn read_window(
+    placer: &Placer,
+    paths: &[PathBuf],
+    range: std::ops::Range<usize>,
+    stat: bool,
+) -> Vec<(Option<Stat>, Result<PlacedFile>)> {
+    range
+        .into_par_iter()
+        .map(|fi| {
+            let before = stat
+                .then(|| manifest::stat(&paths[fi]).ok())
+                .flatten()
+                .filter(|st| !st.is_racy(FileTime::now()));
+            (before, placer.open(fi))
+        })
+        .collect()
 }
 
 /// Refuses a catalog whose scans cannot all be told apart: a `--pose` or `--only` naming no
