@@ -278,3 +278,35 @@ fn march_at_four_metres_converges_on_the_courts() {
         assert!(e < 0.01, "{name}: {e}");
     }
 }
+
+/// At twenty metres the `t_max` disk spans hundreds of pixels: with eight steps a slice strode
+/// over the court's pillar and walls (mean error 0.12 on the station), so the march takes one
+/// sample per `MAX_STRIDE` pixels of the disk, and stays near the map's own rays.
+#[test]
+fn march_at_twenty_metres_does_not_stride_over_the_court() {
+    let rho = (20.0, Falloff::Smoothstep);
+    let equirect = station(768, 384, Mat3::IDENTITY);
+    let pinhole = camera(576, 432, -10f32.to_radians());
+    let turn = Mat3::from_rotation_z(0.6);
+    let maps = [
+        ("equirectangular", cast(&equirect, court), &equirect, 0.06),
+        (
+            "pinhole",
+            rotated_points(cast(&pinhole, |o, d| court(o, turn * d)), turn),
+            &pinhole,
+            0.03,
+        ),
+    ];
+    for (name, g, proj, bound) in &maps {
+        let refs = picks(g, proj, 200, rho);
+        let mut prm = params(8, 8, rho.0);
+        prm.falloff = rho.1;
+        let e = mean_abs_error(&crate::ssao::compute(g, proj, &prm), &refs);
+        eprintln!(
+            "{name} court at t_max = 20 m, span {:.3}: mean |a − A| {e:.4}",
+            span(&refs)
+        );
+        assert!(span(&refs) > 0.3);
+        assert!(e < *bound, "{name}: {e}");
+    }
+}

@@ -161,7 +161,7 @@ impl<'a> Ctx<'a> {
         ppr: f32,
         jitter: f32,
     ) {
-        let count = (span as u32).clamp(1, self.steps);
+        let count = (span as u32).clamp(1, f.steps);
         let step = span / count as f32;
         // In-plane coordinates as linear forms of v = s − p: along the tangent line
         // (a u − b V)/R as measured; across it the height n·v above the tangent plane

@@ -63,9 +63,12 @@
 //! image displacement of `p + ε eᵢ` (`ε = 10⁻³ ×` the point's depth or distance). Each half-line
 //! is marched up to the pixel radius of a sphere of radius `t_max` at `p`'s depth along that
 //! direction (the `(r_x, r_y)` ellipse of [`Projection::disk_radius`]), clipped to the map,
-//! starting where it leaves `p`'s own pixel, with `min(steps, ⌊length⌋)` (at least 1) samples
+//! starting where it leaves `p`'s own pixel, with `min(n, ⌊length⌋)` (at least 1) samples
 //! evenly stratified with a per-half-plane jitter, so consecutive samples are at least a pixel
-//! apart. Samples on `p`'s pixel, on empty pixels or outside the map are skipped; a sample at
+//! apart. `n` is `steps`, raised where the ellipse's smaller radius spans more than `steps`
+//! strides of [`MAX_STRIDE`] pixels (up to [`MAX_STEP_GAIN`] × `steps`): with a fixed count,
+//! at a large `t_max` the samples stride over occluders narrower than a stride, and a court's
+//! columns went missing (`docs/accuracy.md`, "Large finite `t_max`"). Samples on `p`'s pixel, on empty pixels or outside the map are skipped; a sample at
 //! 3-D distance `≥ t_max` is ignored (beyond `t_max`, `ρ = 1`: it cannot darken `p`), and one
 //! within 10⁻⁵ rad of the tangent plane counts as on it (rounding noise of a plane). Where `ρ`
 //! jumps to 1 at `t_max` (`--falloff none`) the point where the profile leaves the `t_max`
@@ -104,6 +107,12 @@ use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
 
 mod lanes;
+
+/// Widest stride of the march, pixels: occluders narrower than a stride can fall between two
+/// samples, so where `t_max` spans more than `steps` strides the march takes more samples.
+pub const MAX_STRIDE: f32 = 8.0;
+/// At most this many times `steps` samples per half-line.
+pub const MAX_STEP_GAIN: u32 = 8;
 
 /// Computes the unblurred horizon-based obscurance of every valid pixel.
 ///
@@ -236,6 +245,8 @@ struct Frame {
     iry2: f32,
     o: (f32, f32),
     fo: (f32, f32),
+    /// Samples per half-line (before the one-per-pixel bound).
+    steps: u32,
     /// On a spherical map: the pixels per radian of arc of a unit screen derivative (the
     /// point's distance, over the derivative's metres), and the angle from the point within
     /// which the t_max sphere lies; `None` elsewhere.
@@ -292,6 +303,22 @@ struct Ctx<'a> {
 }
 
 impl<'a> Ctx<'a> {
+    /// Samples per half-line of a pixel whose `t_max` ellipse has the smaller radius `radius`
+    /// pixels (before the one-per-pixel bound): `steps`, or more where they would stride over
+    /// more than [`MAX_STRIDE`] pixels, up to [`MAX_STEP_GAIN`] × `steps`. The smaller radius,
+    /// because an equirectangular map's rows shrink towards the poles: there a pixel across is
+    /// less than the map resolves.
+    #[inline(always)]
+    fn steps_over(&self, radius: f32) -> u32 {
+        let dense = (radius / MAX_STRIDE).ceil();
+        let most = self.steps.saturating_mul(MAX_STEP_GAIN);
+        if dense > self.steps as f32 {
+            (dense.min(most as f32) as u32).max(self.steps)
+        } else {
+            self.steps
+        }
+    }
+
     fn new(g: &'a GBuffer, pts: &'a [Vec3A], proj: &'a Projection, prm: &SsaoParams) -> Ctx<'a> {
         let tmax2 = if prm.tmax > 0.0 {
             prm.tmax * prm.tmax
@@ -443,6 +470,7 @@ impl<'a> Ctx<'a> {
             o: (ox, oy),
             fo: (fox, foy),
             arc,
+            steps: self.steps_over(rx.min(ry)),
         };
         let (mut sum_s, mut sum_t, mut any) = (0.0f32, 0.0f32, false);
         let mut left = self.directions;
