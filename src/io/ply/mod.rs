@@ -170,15 +170,23 @@ impl PlyFile {
             .element("vertex")
             .and_then(|i| self.header.elements.get(i))
             .map_or(0, |e| e.count);
-        let lists = self
-            .list_indices("face", "vertex_indices")
-            .or_else(|| self.list_indices("face", "vertex_index"));
-        lists.map_or(0, |faces| {
-            faces
-                .iter()
-                .filter(|f| f.iter().any(|&v| v as usize >= n))
-                .count()
-        })
+        let count = |prop: &str| {
+            let mut bad = 0usize;
+            self.visit_lists("face", prop, |items| {
+                let vertex = |v: Option<f64>| to_u32(v?).filter(|&i| (i as usize) < n);
+                for v in items {
+                    if vertex(v).is_none() {
+                        bad += 1;
+                        break;
+                    }
+                }
+                Some(())
+            })
+            .map(|()| bad)
+        };
+        count("vertex_indices")
+            .or_else(|| count("vertex_index"))
+            .unwrap_or(0)
     }
 
     /// The items of a list property through `item`, one `Vec` per row; `None` if missing,
@@ -189,27 +197,42 @@ impl PlyFile {
         prop: &str,
         item_of: impl Fn(f64) -> Option<u32>,
     ) -> Option<Vec<Vec<u32>>> {
+        let rows = self.element_parts(element).map_or(0, |(def, _)| def.count);
+        let mut out = Vec::with_capacity(rows);
+        self.visit_lists(element, prop, |items| {
+            out.push(items.map(|v| item_of(v?)).collect::<Option<Vec<u32>>>()?);
+            Some(())
+        })?;
+        Some(out)
+    }
+
+    /// Calls `visit` with the items of each row's list `prop` of `element`, read as f64 (an
+    /// item that cannot be read is `None`); `None` if the list is missing, unreadable, or
+    /// `visit` returns `None`.
+    fn visit_lists(
+        &self,
+        element: &str,
+        prop: &str,
+        mut visit: impl FnMut(&mut dyn Iterator<Item = Option<f64>>) -> Option<()>,
+    ) -> Option<()> {
         let (def, data) = self.element_parts(element)?;
         let pi = def.props.iter().position(|p| p.name == prop)?;
         let PropertyKind::List { count, item } = def.props.get(pi)?.kind else {
             return None;
         };
         let layout = Layout::of(def, data)?;
-        let mut out = Vec::with_capacity(def.count);
         layout.for_each_row(|row| {
             let off = field_offset(&def.props, row, pi)?;
             let n = list_len(count, row, off)?;
             let first = off.checked_add(count.size())?;
             let end = first.checked_add(n.checked_mul(item.size())?)?;
             let items = row.get(first..end)?;
-            let mut list = Vec::with_capacity(n);
-            for it in items.chunks_exact(item.size()) {
-                list.push(item_of(item.read_f64(it, 0)?)?);
-            }
-            out.push(list);
-            Some(())
-        })?;
-        Some(out)
+            visit(
+                &mut items
+                    .chunks_exact(item.size())
+                    .map(|it| item.read_f64(it, 0)),
+            )
+        })
     }
 
     /// Sets a scalar property of an element from f64 values (one per row), converting to

@@ -67,10 +67,11 @@
 //! evenly stratified with a per-half-plane jitter, so consecutive samples are at least a pixel
 //! apart. `n` is `steps`, raised where the ellipse's smaller radius spans more than `steps`
 //! strides of [`MAX_STRIDE`] pixels (up to [`MAX_STEP_GAIN`] × `steps`): with a fixed count,
-//! at a large `t_max` the samples stride over occluders narrower than a stride, and a court's
-//! columns went missing (`docs/accuracy.md`, "Large finite `t_max`"). Samples on `p`'s pixel, on empty pixels or outside the map are skipped; a sample at
-//! 3-D distance `≥ t_max` is ignored (beyond `t_max`, `ρ = 1`: it cannot darken `p`), and one
-//! within 10⁻⁵ rad of the tangent plane counts as on it (rounding noise of a plane). Where `ρ`
+//! at a large `t_max` the samples stride over occluders narrower than a stride (a court's
+//! columns, `docs/accuracy.md`, "Large finite `t_max`"). Samples on `p`'s pixel, on empty
+//! pixels or outside the map are skipped; a sample at 3-D distance `≥ t_max` is ignored
+//! (beyond `t_max`, `ρ = 1`: it cannot darken `p`), and one within 10⁻⁵ rad of the tangent
+//! plane counts as on it (rounding noise of a plane). Where `ρ`
 //! jumps to 1 at `t_max` (`--falloff none`) the point where the profile leaves the `t_max`
 //! sphere between a sample inside and the next one outside is taken as a sample too: the
 //! surface blocks fully up to there, however far the last sample inside lies below. The pixel's
@@ -116,7 +117,8 @@ pub const MAX_STEP_GAIN: u32 = 8;
 
 /// Computes the unblurred horizon-based obscurance of every valid pixel.
 ///
-/// `prm.directions` half-planes and up to `prm.steps` samples per half-plane (both at least 1),
+/// `prm.directions` half-planes and `prm.steps` samples per half-plane (both at least 1; more
+/// samples where `t_max` spans many pixels, fewer where it spans fewer than `steps`),
 /// falloff `prm.tmax`, per-pixel patterns from `prm.seed`. A projection whose size differs from
 /// the G-buffer's cannot be marched: every valid pixel is then flagged.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
