@@ -117,6 +117,31 @@ fn non_finite_points_are_skipped_counted_and_never_written() {
     assert_eq!(std::fs::read(&p).unwrap(), before, "input modified");
 }
 
+/// A scan with no point (an empty PLY beside a good one; a PTX grid of no-returns) stops the
+/// run before any work with one line naming the file, and leaves no output directory.
+#[test]
+fn a_scan_without_points_names_its_file() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    let good = small_scan(d.path(), "good.ply", &dome(500));
+    let empty = small_scan(d.path(), "empty.ply", &[]);
+    let msg = fails(
+        &["merge".into(), "-o".into(), s(&out), s(&good), s(&empty)],
+        "empty.ply: scan empty has no point to shade",
+    );
+    assert_eq!(msg.trim().lines().count(), 1, "{msg}");
+    let mut ptx = String::from("3\n2\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n");
+    ptx += "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+    ptx += &"0 0 0 0.5\n".repeat(6);
+    let none = d.path().join("none.ptx");
+    std::fs::write(&none, ptx).unwrap();
+    fails(
+        &["merge".into(), "-o".into(), s(&out), s(&none)],
+        "none.ptx: scan none has no point to shade",
+    );
+    assert!(!out.exists(), "a failed run left an output directory");
+}
+
 /// A face that names a vertex the file does not have (beyond the count, negative) is dropped
 /// with a warning, so the output is a PLY that viewers load; the good faces stay.
 #[test]

@@ -273,7 +273,11 @@ pub fn from_files<'a>(
                 if s.is_empty() {
                     return Err(Error::scan(
                         path.display().to_string(),
-                        format!("scan {} has no point with finite coordinates", s.name),
+                        format!(
+                            "scan {} has no point to shade (no record with finite coordinates; \
+                             a grid's no-return cells are not points)",
+                            s.name
+                        ),
                     ));
                 }
                 crate::io::source::check_usable(s, path)?;
