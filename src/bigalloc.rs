@@ -66,6 +66,26 @@ pub fn kept_bytes() -> u64 {
         .sum()
 }
 
+/// Returns every kept mapping to the system: resident memory that only saves the next large
+/// blocks their page faults, which a run short of memory cannot afford (the map cache calls
+/// it before a load that the budget holds only without them).
+pub fn release_kept() {
+    if KEPT.load(Ordering::Relaxed) == 0 {
+        return;
+    }
+    let mut kept = [(0usize, 0usize); KEPT_SLOTS];
+    lock();
+    for (k, e) in kept.iter_mut().enumerate() {
+        if kept_entry(k).0 != 0 {
+            *e = take_kept(k);
+        }
+    }
+    unlock();
+    for &(a, l) in kept.iter().filter(|e| e.0 != 0) {
+        os::unmap(a as *mut u8, l);
+    }
+}
+
 /// Keeps the freed mapping at `addr` of `len` mapped bytes, joined to the kept ones it
 /// borders (the pieces of one split mapping, freed at different times, become one again);
 /// false when the table is full.
