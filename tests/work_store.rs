@@ -281,6 +281,13 @@ fn damaged_products_are_errors_and_not_fresh() {
         "{why}"
     );
     assert!(load_view(d, "k").is_err());
+    // The same version built from other sources (an estimator changed, the version not).
+    old.mvao_version = format!("{}+000000000000", env!("CARGO_PKG_VERSION"));
+    assert_ne!(old.mvao_version, MVAO_VERSION);
+    write_entry(d, &old).unwrap();
+    let m = Manifest::load(d);
+    assert!(!m.is_fresh("k", &[&input], &prm));
+    assert!(load_view(d, "k").is_err());
     let mut other = e.clone();
     other.format += 1;
     write_entry(d, &other).unwrap();

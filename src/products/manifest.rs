@@ -35,8 +35,9 @@ use xxhash_rust::xxh3::{xxh3_128, Xxh3};
 
 /// Layout version of the products and entries; a different one is never fresh.
 pub const FORMAT: u32 = 1;
-/// The mvao version recorded in (and required of) every entry.
-pub const MVAO_VERSION: &str = env!("CARGO_PKG_VERSION");
+/// The mvao version and build (a hash of the sources the binary was built from) recorded in,
+/// and required of, every entry: products of another build are made again.
+pub const MVAO_VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "+", env!("MVAO_SOURCE_HASH"));
 /// Suffix of a key's entry file.
 pub const ENTRY_SUFFIX: &str = ".manifest.json";
 /// The snapshot of all entries written by [`Manifest::save`].
