@@ -66,22 +66,51 @@ pub fn kept_bytes() -> u64 {
         .sum()
 }
 
-/// Returns every kept mapping to the system: resident memory that only saves the next large
-/// blocks their page faults, which a run short of memory cannot afford (the map cache calls
-/// it before a load that the budget holds only without them).
-pub fn release_kept() {
-    if KEPT.load(Ordering::Relaxed) == 0 {
+/// Returns kept mappings to the system until at most `limit` bytes stay kept: resident
+/// memory that only saves the next large blocks their page faults, which a run short of
+/// memory cannot afford (the map cache calls it before a load that the budget holds only
+/// with fewer of them).
+pub fn trim_kept(limit: u64) {
+    let kept = KEPT.load(Ordering::Relaxed) as u64;
+    if kept <= limit {
         return;
     }
-    let mut kept = [(0usize, 0usize); KEPT_SLOTS];
+    // Whole huge pages, as every kept length is.
+    let surplus = usize::try_from(kept - limit).map_or(usize::MAX, |s| s.div_ceil(HUGE) * HUGE);
     lock();
-    for (k, e) in kept.iter_mut().enumerate() {
-        if kept_entry(k).0 != 0 {
-            *e = take_kept(k);
-        }
-    }
+    let spare = cut_tails(surplus);
     unlock();
-    for &(a, l) in kept.iter().filter(|e| e.0 != 0) {
+    unmap_all(&spare);
+}
+
+/// Cuts `surplus` bytes (whole huge pages) from the tails of the kept mappings (under the
+/// lock), taking a mapping whole when its tail is not enough: the pieces to unmap.
+fn cut_tails(mut surplus: usize) -> [(usize, usize); KEPT_SLOTS] {
+    let mut spare = [(0usize, 0usize); KEPT_SLOTS];
+    for (j, s) in spare.iter_mut().enumerate() {
+        let (a, l) = kept_entry(j);
+        if surplus == 0 {
+            break;
+        }
+        if a == 0 {
+            continue;
+        }
+        let cut = surplus.min(l);
+        if cut == l {
+            *s = take_kept(j);
+        } else {
+            KEPT_LEN[j].store(l - cut, Ordering::Relaxed);
+            KEPT.fetch_sub(cut, Ordering::Relaxed);
+            *s = (a + l - cut, cut);
+        }
+        surplus -= cut;
+    }
+    spare
+}
+
+/// Unmaps the pieces `cut_tails` cut (outside the lock).
+fn unmap_all(spare: &[(usize, usize)]) {
+    for &(a, l) in spare.iter().filter(|s| s.0 != 0) {
         os::unmap(a as *mut u8, l);
     }
 }
@@ -170,30 +199,9 @@ fn reuse(size: usize) -> Option<(*mut u8, usize)> {
     take_kept(k);
     // The growth is returned from the tails of the other kept mappings (all lengths are
     // whole huge pages).
-    let mut surplus = need.saturating_sub(len);
-    let mut spare = [(0usize, 0usize); KEPT_SLOTS];
-    for (j, s) in spare.iter_mut().enumerate() {
-        let (a, l) = kept_entry(j);
-        if surplus == 0 {
-            break;
-        }
-        if a == 0 {
-            continue;
-        }
-        let cut = surplus.min(l);
-        if cut == l {
-            *s = take_kept(j);
-        } else {
-            KEPT_LEN[j].store(l - cut, Ordering::Relaxed);
-            KEPT.fetch_sub(cut, Ordering::Relaxed);
-            *s = (a + l - cut, cut);
-        }
-        surplus -= cut;
-    }
+    let spare = cut_tails(need.saturating_sub(len));
     unlock();
-    for &(a, l) in spare.iter().filter(|s| s.0 != 0) {
-        os::unmap(a as *mut u8, l);
-    }
+    unmap_all(&spare);
     let p = if len < need {
         let p = os::remap(at as *mut u8, len, need);
         if p.is_null() {

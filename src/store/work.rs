@@ -341,11 +341,9 @@ impl MapCache {
         let grown = self.outside.saturating_sub(self.step_start);
         let step = self.outside + self.reserve.saturating_sub(grown);
         let room = self.budget.saturating_sub(step);
-        // Freed mappings the allocator keeps are resident beside the budget's count: returned
-        // when the load would not fit with them.
-        if self.used + need + crate::bigalloc::kept_bytes() > room {
-            crate::bigalloc::release_kept();
-        }
+        // Freed mappings the allocator keeps are resident beside the budget's count: as many
+        // are returned as the load would not fit beside.
+        crate::bigalloc::trim_kept(room.saturating_sub(self.used + need));
         while self.used + need > room {
             let keys = self.maps.keys().chain(self.fresh.keys()).copied();
             let Some(k) = keys.max_by_key(|&k| self.next_use(k)) else {
