@@ -26,6 +26,10 @@ pub struct GBuffer {
     pub normal: Vec<Vec3>,
     /// Radius `rad(p)`; zero where empty.
     pub radius: Vec<f32>,
+    /// Whether the horizon estimator lifts each receiver by the map's range noise (a scan's
+    /// map). A depth stream's frames are not lifted: integrating them over frames already
+    /// averages the noise out (`docs/design.md`, "Receiver lift").
+    pub lift_receivers: bool,
 }
 
 impl GBuffer {
@@ -121,6 +125,7 @@ pub fn rasterize(
         position: per_pixel(&best, Vec3::ZERO, |i| points[i]),
         normal: per_pixel(&best, Vec3::ZERO, |i| normals[i]),
         radius: per_pixel(&best, 0.0, |i| radii[i]),
+        lift_receivers: true,
     }
 }
 

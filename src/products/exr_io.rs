@@ -394,6 +394,7 @@ pub fn decode_maps(
             position,
             normal,
             radius,
+            lift_receivers: true,
         },
         ao,
         no_sample,
@@ -422,6 +423,7 @@ mod tests {
             position: (0..n).map(|i| Vec3::new(f(i, 2), f(i, 3), -0.0)).collect(),
             normal: (0..n).map(|i| Vec3::new(f(i, 4), 1e-40, f(i, 5))).collect(),
             radius: (0..n).map(|i| f(i, 6)).collect(),
+            lift_receivers: true,
         };
         g.point[0] = u32::MAX - 1;
         let ao = (0..n).map(|i| f(i, 7)).collect();

@@ -148,6 +148,7 @@ pub fn gbuffer(g: &FrameGeometry, k: &Intrinsics) -> GBuffer {
             .into_par_iter()
             .map(|i| if valid[i] { g.points[i].z * inv_f } else { 0.0 })
             .collect(),
+        lift_receivers: false,
     }
 }
 

@@ -197,6 +197,34 @@ fn open_planes_read_exactly_one() {
     assert!(g.filled() > 10_000);
 }
 
+/// A floor whose heights carry 2 mm of noise (1 cm pixels, exact normals): the lift reads
+/// the noise off the map and the floor reads open, where an unlifted receiver takes its
+/// neighbours' noise for occluders; a noise-free floor is not lifted.
+#[test]
+fn range_noise_is_measured_and_does_not_darken_a_floor() {
+    let sigma = 0.002;
+    let mut rng = crate::rng::SplitMix64::new(3, 0);
+    let z: Vec<f32> = (0..96 * 96)
+        .map(|_| (rng.gaussian() * sigma) as f32)
+        .collect();
+    let (g, proj) = heightfield(96, 96, 0.01, |x, y| {
+        let (i, j) = ((x / 0.01) as usize, (y / 0.01) as usize);
+        (z[j * 96 + i], Vec3::Z)
+    });
+    let pts = positions(&g);
+    let est = range_noise(&g, &pts) as f64;
+    assert!((est / sigma - 1.0).abs() < 0.1, "noise {est}");
+    let tmax = 0.2;
+    assert!((receiver_lift(&g, &pts, tmax) - 3.0 * est as f32).abs() < 1e-6);
+    // A rough surface is not all noise: the lift stops at 5 % of t_max.
+    assert!((receiver_lift(&g, &pts, 0.01) - 0.0005).abs() < 1e-7);
+    let m = ssao(&g, &proj, &params(8, 8, tmax));
+    let mean = m.ao.iter().sum::<f32>() / m.ao.len() as f32;
+    assert!(mean > 0.985, "noisy floor reads {mean}");
+    let (g, _) = heightfield(96, 96, 0.01, |_, _| (0.0, Vec3::Z));
+    assert_eq!(range_noise(&g, &positions(&g)), 0.0);
+}
+
 /// A floor z = 0 for x < 48 and a block of height `hgt` for x ≥ 48 (pixel size 1).
 fn step_scene(hgt: f32) -> (GBuffer, Projection) {
     heightfield(96, 192, 1.0, |x, _| {
