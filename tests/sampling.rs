@@ -57,7 +57,7 @@ fn adaptive_by_default_with_the_error_of_every_pixel() {
         .map(|v| v.as_u64().unwrap())
         .collect();
     let points = default["totals"]["points"].as_u64().unwrap();
-    assert_eq!(levels.len(), 3);
+    assert_eq!(levels.len(), 5);
     assert_eq!(levels.iter().sum::<u64>(), points, "{levels:?}");
     assert!(
         levels[1] + levels[2] > points / 5,

@@ -117,7 +117,8 @@ pub struct MergeArgs {
     #[arg(long, value_enum, default_value_t = Estimator::Horizon)]
     pub estimator: Estimator,
     /// Horizon march density: every pixel (`uniform`), or once per 2×2 or 4×4 block on flat,
-    /// continuous surfaces small against t_max (`adaptive`).
+    /// continuous surfaces small against t_max (`adaptive`; at `--tmax inf` up to 16×16, by
+    /// the distance to the nearest occluder).
     #[arg(long, value_enum, default_value_t = Sampling::Adaptive)]
     pub sampling: Sampling,
     /// Write each scan's single-view SSAO instead of the multi-view merge.

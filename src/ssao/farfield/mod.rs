@@ -115,45 +115,84 @@ pub fn applies(prm: &SsaoParams) -> bool {
 /// line families (at most 64). A projection whose size differs from the G-buffer's flags every
 /// valid pixel.
 pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
-    ssao_masked(g, proj, prm, None).0
+    Sweeps::new(g, proj, prm).eval(None).0
 }
 
-/// [`ssao`] evaluated only at the pixels `only` marks (all valid pixels when `None`; the others
-/// keep 1, unflagged), and each pixel's *reach*: the distance to the nearest sample that bounds
-/// the blocked arc of one of its half-planes (∞ where no horizon rises above the tangent
-/// plane). Obscurance changes on the scale of the reach as the pixel moves.
-pub(crate) fn ssao_masked(
+/// The sweeps of one map, set up once for evaluations of several sets of pixels (the levels of
+/// [`super::multires`]): on equirectangular maps the circle families with their block hulls,
+/// which cost as much to build as a coarse evaluation of the whole map.
+pub(crate) struct Sweeps<'a> {
+    g: &'a GBuffer,
+    proj: &'a Projection,
+    /// Line families.
+    k: usize,
+    /// The map's AO when it cannot be marched (see [`super::unmarchable`]).
+    unmarchable: Option<AoMap>,
+    /// The families with their hulls (equirectangular maps only) and the points they index.
+    circles: Option<(Vec<Family>, Vec<Vec3A>)>,
+}
+
+impl<'a> Sweeps<'a> {
+    /// Sets up the sweeps of `g` seen by `proj` with `4 × directions` families (at most 64).
+    pub(crate) fn new(g: &'a GBuffer, proj: &'a Projection, prm: &SsaoParams) -> Sweeps<'a> {
+        let k = (4 * prm.directions.max(1) as usize).min(MAX_FAMILIES);
+        let unmarchable = super::unmarchable(g, proj);
+        let circles =
+            (unmarchable.is_none() && matches!(proj.model, Model::Equirect { .. })).then(|| {
+                let fams: Vec<Family> = (0..k).map(|f| Family::new(g, proj, f, k)).collect();
+                let pts: Vec<Vec3A> = g.position.iter().map(|&p| Vec3A::from(p)).collect();
+                (fams, pts)
+            });
+        Sweeps {
+            g,
+            proj,
+            k,
+            unmarchable,
+            circles,
+        }
+    }
+
+    /// Whether an evaluation costs in proportion to the pixels it evaluates (the walk over
+    /// circles), not a pass over every line that holds one (straight lines).
+    pub(crate) fn per_pixel(&self) -> bool {
+        self.circles.is_some()
+    }
+
+    /// The plain ambient occlusion of the valid pixels `only` marks (all when `None`; the
+    /// others keep 1, unflagged), and each pixel's *reach*: the distance to the nearest sample
+    /// that bounds the blocked arc of one of its half-planes (∞ where no horizon rises above
+    /// the tangent plane). Obscurance changes on the scale of the reach as the pixel moves.
+    pub(crate) fn eval(&self, only: Option<&[bool]>) -> (AoMap, Vec<f32>) {
+        if let Some(map) = &self.unmarchable {
+            let map = map.clone();
+            let reach = vec![f32::INFINITY; map.ao.len()];
+            return (map, reach);
+        }
+        match &self.circles {
+            Some((fams, pts)) => walk(self.g, self.proj, fams, pts, only),
+            None => screen::ssao(self.g, self.proj, self.k, only),
+        }
+    }
+}
+
+/// The far field of the pixels `only` marks by each one's own walk along the lines of the
+/// families `fams` (over `pts`, the map's points), over block hulls.
+fn walk(
     g: &GBuffer,
     proj: &Projection,
-    prm: &SsaoParams,
+    fams: &[Family],
+    pts: &[Vec3A],
     only: Option<&[bool]>,
 ) -> (AoMap, Vec<f32>) {
-    if let Some(map) = super::unmarchable(g, proj) {
-        let reach = vec![f32::INFINITY; map.ao.len()];
-        return (map, reach);
-    }
-    let k = (4 * prm.directions.max(1) as usize).min(MAX_FAMILIES);
-    if matches!(proj.model, Model::Equirect { .. }) {
-        walk(g, proj, k, only)
-    } else {
-        screen::ssao(g, proj, k, only)
-    }
-}
-
-/// The far field of the pixels `only` marks by each one's own walk along the lines of `k`
-/// families, over block hulls.
-fn walk(g: &GBuffer, proj: &Projection, k: usize, only: Option<&[bool]>) -> (AoMap, Vec<f32>) {
     let n = g.width * g.height;
     let mut reach = crate::par::filled(n, f32::INFINITY);
     let mut ao = crate::par::filled(n, 1.0f32);
     let mut flag = crate::par::filled(n, false);
-    let fams: Vec<Family> = (0..k).map(|f| Family::new(g, proj, f, k)).collect();
-    let pts: Vec<Vec3A> = g.position.iter().map(|&p| Vec3A::from(p)).collect();
     let ctx = Ctx {
         g,
         proj,
-        pts: &pts,
-        fams: &fams,
+        pts,
+        fams,
         only,
     };
     let w = g.width;

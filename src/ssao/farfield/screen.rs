@@ -49,7 +49,7 @@ struct Sums {
     s: Vec<AtomicU32>,
     t: Vec<AtomicU32>,
     seen: Vec<AtomicBool>,
-    /// The distance to the nearest sample that raised a horizon (see [`super::ssao_masked`]).
+    /// The distance to the nearest sample that raised a horizon (see [`super::Sweeps::eval`]).
     reach: Vec<AtomicU32>,
 }
 
@@ -107,7 +107,7 @@ fn chart(proj: &Projection, p: Vec3) -> Option<[f32; 3]> {
 
 /// Unblurred plain ambient occlusion of the valid pixels `only` marks (all when `None`) of a
 /// pinhole or orthographic map from `k` families of straight lines, and each pixel's reach
-/// (see [`super::ssao_masked`]).
+/// (see [`super::Sweeps::eval`]).
 pub(super) fn ssao(
     g: &GBuffer,
     proj: &Projection,

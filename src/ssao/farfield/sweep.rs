@@ -64,9 +64,6 @@ pub(super) struct Family {
     verts: Vec<u32>,
 }
 
-/// One line's hull vertices per block of one level.
-type LevelHulls = Vec<Vec<u32>>;
-
 /// One level of the block hierarchy.
 struct Level {
     /// Blocks per line.
@@ -152,6 +149,47 @@ impl Lines {
     pub(super) fn normal(&self, l: usize) -> Vec3A {
         self.normals[l]
     }
+
+    /// On circles, `(sin φ, cos φ)` of every sample (the same on every circle of a family).
+    fn turns(&self) -> Option<Vec<(f32, f32)>> {
+        let Shape::Circle { step, .. } = self.shape else {
+            return None;
+        };
+        Some((0..self.len).map(|i| (step * i as f32).sin_cos()).collect())
+    }
+
+    /// The map pixel of every sample of line `l` into `row` ([`EMPTY_SAMPLE`] off the map),
+    /// with the samples' turns from [`Lines::turns`] on circles: the same pixels as
+    /// [`Lines::pixel`], projected four at a time.
+    fn fill_row(&self, proj: &Projection, l: usize, turns: Option<&[(f32, f32)]>, row: &mut [u32]) {
+        let (
+            Shape::Circle {
+                a, b1, b2, dbeta, ..
+            },
+            Some(turns),
+        ) = (self.shape, turns)
+        else {
+            for (i, s) in row.iter_mut().enumerate() {
+                *s = self.pixel(proj, l, i).map_or(EMPTY_SAMPLE, |c| c as u32);
+            }
+            return;
+        };
+        let (sb, cb) = (dbeta * l as f32).sin_cos();
+        let w = b1 * cb + b2 * sb;
+        let pixel = |q: Option<crate::projection::Projected>| {
+            q.and_then(|q| proj.pixel_index(q.x, q.y))
+                .map_or(EMPTY_SAMPLE, |c| c as u32)
+        };
+        for (out, t) in row.chunks_mut(4).zip(turns.chunks(4)) {
+            let mut d = [Vec3::ZERO; 4];
+            for (d, &(sp, cp)) in d.iter_mut().zip(t) {
+                *d = Vec3::from(a * cp + w * sp);
+            }
+            for (o, q) in out.iter_mut().zip(proj.project4(d)) {
+                *o = pixel(q);
+            }
+        }
+    }
 }
 
 impl Family {
@@ -163,31 +201,18 @@ impl Family {
         while (BLOCK as usize) << (depth - 1) < len {
             depth += 1;
         }
-        let rows: Vec<(Vec<u32>, Vec<LevelHulls>)> = (0..lines.count)
+        let turns = lines.turns();
+        let rows: Vec<LineHulls> = (0..lines.count)
             .into_par_iter()
-            .map(|l| {
-                let row: Vec<u32> = (0..len)
-                    .map(|i| match lines.pixel(proj, l, i) {
-                        Some(c) if g.is_valid(c) => c as u32,
-                        _ => EMPTY_SAMPLE,
-                    })
-                    .collect();
-                let m = lines.normal(l);
-                let mut below: LevelHulls = row
-                    .chunks(BLOCK as usize)
-                    .map(|b| hull(b, m, &g.position))
-                    .collect();
-                let mut hulls = Vec::with_capacity(depth);
-                // The hull of two blocks' union is the hull of their hulls' vertices.
-                for _ in 1..depth {
-                    let up = below
-                        .chunks(2)
-                        .map(|pair| hull(&pair.concat(), m, &g.position))
-                        .collect();
-                    hulls.push(std::mem::replace(&mut below, up));
+            .map_init(Vec::new, |pts, l| {
+                let mut row = vec![EMPTY_SAMPLE; len];
+                lines.fill_row(proj, l, turns.as_deref(), &mut row);
+                for s in row.iter_mut() {
+                    if *s != EMPTY_SAMPLE && !g.is_valid(*s as usize) {
+                        *s = EMPTY_SAMPLE;
+                    }
                 }
-                hulls.push(below);
-                (row, hulls)
+                line_hulls(row, lines.normal(l), depth, &g.position, pts)
             })
             .collect();
         let mut fam = Family {
@@ -205,15 +230,19 @@ impl Family {
             verts: Vec::new(),
             lines,
         };
-        for (row, hulls) in rows {
-            fam.samples.extend_from_slice(&row);
-            for (level, hs) in fam.levels.iter_mut().zip(hulls) {
-                for h in hs {
-                    let start = fam.verts.len() as u32;
-                    fam.verts.extend_from_slice(&h);
-                    level.blocks.push((start, fam.verts.len() as u32));
-                    level.spheres.push(sphere(&h, &g.position));
-                }
+        for line in rows {
+            fam.samples.extend_from_slice(&line.row);
+            let base = fam.verts.len() as u32;
+            fam.verts.extend_from_slice(&line.verts);
+            let mut at = 0;
+            for level in fam.levels.iter_mut() {
+                let n = level.nblocks;
+                let ranges = &line.blocks[at..at + n];
+                level
+                    .blocks
+                    .extend(ranges.iter().map(|&(v0, v1)| (base + v0, base + v1)));
+                level.spheres.extend_from_slice(&line.spheres[at..at + n]);
+                at += n;
             }
         }
         fam
@@ -222,7 +251,7 @@ impl Family {
     /// The blocked part `∫ f` of the half-plane `half` of pixel `c` at `pa`, snapped to sample
     /// `i` of line `l`, by the samples before it (`dir = −1`) or after it (`dir = 1`), each
     /// solid behind as the sensor sees it; whether any valid sample was read; and the distance
-    /// to the nearest sample that bounds a blocked arc (see [`super::ssao_masked`]).
+    /// to the nearest sample that bounds a blocked arc (see [`super::Sweeps::eval`]).
     ///
     /// A sample at `γ` from `V` and `φ` round from the receiver (seen from the sensor) blocks
     /// the arc `[γ, π − φ)`: the directions that pass below it and cross the ray from the
@@ -490,33 +519,95 @@ fn line_normal(shape: &Shape, proj: &Projection, l: usize, len: usize) -> Vec3A 
     }
 }
 
-/// The pixels of a block's samples that are vertices of the convex hull of their points,
-/// projected on the plane of normal `m`.
-fn hull(block: &[u32], m: Vec3A, pos: &[Vec3]) -> Vec<u32> {
+/// One line's samples and the hulls of its blocks, level after level: per block the range of
+/// its vertices in `verts` and the sphere holding them.
+struct LineHulls {
+    row: Vec<u32>,
+    verts: Vec<u32>,
+    blocks: Vec<(u32, u32)>,
+    spheres: Vec<Vec4>,
+}
+
+/// The block hulls of the line `row` (sample pixels) whose plane has normal `m`, at `depth`
+/// levels of blocks (`pts` is scratch).
+fn line_hulls(
+    row: Vec<u32>,
+    m: Vec3A,
+    depth: usize,
+    pos: &[Vec3],
+    pts: &mut Vec<(f32, f32, u32)>,
+) -> LineHulls {
     let m = if m.length_squared() > 0.0 {
         m.normalize()
     } else {
         Vec3A::Z
     };
-    let (ea, eb) = m.any_orthonormal_pair();
+    let plane = m.any_orthonormal_pair();
+    let mut out = LineHulls {
+        verts: Vec::with_capacity(row.len()),
+        blocks: Vec::with_capacity(2 * row.len().div_ceil(BLOCK as usize)),
+        spheres: Vec::with_capacity(2 * row.len().div_ceil(BLOCK as usize)),
+        row: Vec::new(),
+    };
+    let push = |out: &mut LineHulls, block: &[u32], pts: &mut Vec<(f32, f32, u32)>| {
+        let start = out.verts.len();
+        hull(block, plane, pos, pts, &mut out.verts);
+        out.blocks.push((start as u32, out.verts.len() as u32));
+        out.spheres.push(sphere(&out.verts[start..], pos));
+    };
+    for block in row.chunks(BLOCK as usize) {
+        push(&mut out, block, pts);
+    }
+    // The hull of two blocks' union is the hull of their hulls' vertices, which lie side by
+    // side in `verts`.
+    let mut below = 0..out.blocks.len();
+    let mut pair = Vec::new();
+    for _ in 1..depth {
+        let start = out.blocks.len();
+        for b in below.clone().step_by(2) {
+            let last = (b + 1).min(below.end - 1);
+            let (v0, v1) = (out.blocks[b].0 as usize, out.blocks[last].1 as usize);
+            pair.clear();
+            pair.extend_from_slice(&out.verts[v0..v1]);
+            push(&mut out, &pair, pts);
+        }
+        below = start..out.blocks.len();
+    }
+    out.row = row;
+    out
+}
+
+/// Appends to `out` the pixels of a block's samples that are vertices of the convex hull of
+/// their points, projected on the plane spanned by `plane` (`pts` is scratch).
+fn hull(
+    block: &[u32],
+    plane: (Vec3A, Vec3A),
+    pos: &[Vec3],
+    pts: &mut Vec<(f32, f32, u32)>,
+    out: &mut Vec<u32>,
+) {
+    let (ea, eb) = plane;
     // Coordinates relative to one of the block's points keep f32 cancellation small.
     let origin = block
         .iter()
         .find(|&&s| s != EMPTY_SAMPLE)
         .map_or(Vec3A::ZERO, |&s| Vec3A::from(pos[s as usize]));
-    let mut pts: Vec<(f32, f32, u32)> = block
-        .iter()
-        .filter(|&&s| s != EMPTY_SAMPLE)
-        .map(|&s| {
-            let q = Vec3A::from(pos[s as usize]) - origin;
-            (q.dot(ea), q.dot(eb), s)
-        })
-        .filter(|p| p.0.is_finite() && p.1.is_finite())
-        .collect();
+    pts.clear();
+    pts.extend(
+        block
+            .iter()
+            .filter(|&&s| s != EMPTY_SAMPLE)
+            .map(|&s| {
+                let q = Vec3A::from(pos[s as usize]) - origin;
+                (q.dot(ea), q.dot(eb), s)
+            })
+            .filter(|p| p.0.is_finite() && p.1.is_finite()),
+    );
     pts.sort_unstable_by(|p, q| p.0.total_cmp(&q.0).then(p.1.total_cmp(&q.1)));
     pts.dedup_by_key(|p| p.2);
     if pts.len() <= 3 {
-        return pts.iter().map(|p| p.2).collect();
+        out.extend(pts.iter().map(|p| p.2));
+        return;
     }
     // A vertex that turns the boundary by less than COLLINEAR radians is dropped: on a plane
     // seen along a line every sample is a vertex up to rounding, and the tangent through its
@@ -526,23 +617,33 @@ fn hull(block: &[u32], m: Vec3A, pos: &[Vec3]) -> Vec<u32> {
         let turn = ax * by - ay * bx;
         turn - COLLINEAR * ((ax * ax + ay * ay) * (bx * bx + by * by)).sqrt()
     };
-    let mut out: Vec<(f32, f32, u32)> = Vec::with_capacity(pts.len() + 1);
+    // The chain is built in `out` itself, as pixels, with the points looked up by position in
+    // `pts`; `chain` holds those positions.
+    let mut chain: [usize; 2 * BLOCK as usize + 2] = [0; 2 * BLOCK as usize + 2];
+    let cap = chain.len();
+    let mut big = Vec::new();
+    // Each pass pushes every point once: the chain never holds more than 2 n.
+    let chain: &mut [usize] = if 2 * pts.len() + 2 <= cap {
+        &mut chain[..]
+    } else {
+        big.resize(2 * pts.len() + 2, 0);
+        &mut big[..]
+    };
+    let mut len = 0usize;
     for pass in 0..2 {
-        let base = out.len();
-        let iter: Box<dyn Iterator<Item = &(f32, f32, u32)>> = if pass == 0 {
-            Box::new(pts.iter())
-        } else {
-            Box::new(pts.iter().rev())
-        };
-        for &p in iter {
-            while out.len() >= base + 2 && cross(out[out.len() - 2], out[out.len() - 1], p) <= 0.0 {
-                out.pop();
+        let base = len;
+        for j in 0..pts.len() {
+            let i = if pass == 0 { j } else { pts.len() - 1 - j };
+            while len >= base + 2 && cross(pts[chain[len - 2]], pts[chain[len - 1]], pts[i]) <= 0.0
+            {
+                len -= 1;
             }
-            out.push(p);
+            chain[len] = i;
+            len += 1;
         }
-        out.pop();
+        len -= 1;
     }
-    out.iter().map(|p| p.2).collect()
+    out.extend(chain[..len].iter().map(|&i| pts[i].2));
 }
 
 /// A sphere holding the points of `verts` (centre of their bounding box, the largest distance

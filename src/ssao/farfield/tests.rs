@@ -175,6 +175,13 @@ fn pinhole_court_with_sky_converges_at_the_default_budget() {
     assert!(e < 0.01, "{e}");
 }
 
+/// The block walk over `k` families, on any map (the sweeps walk only circles).
+fn walk_all(g: &GBuffer, proj: &Projection, k: usize, only: Option<&[bool]>) -> (AoMap, Vec<f32>) {
+    let fams: Vec<Family> = (0..k).map(|f| Family::new(g, proj, f, k)).collect();
+    let pts: Vec<Vec3A> = g.position.iter().map(|&p| Vec3A::from(p)).collect();
+    walk(g, proj, &fams, &pts, only)
+}
+
 /// `g` with its normals turned back by `rot` (the scene was cast turned by `rot`).
 fn rotated_points(mut g: GBuffer, rot: Mat3) -> GBuffer {
     let inv = rot.transpose();
@@ -234,7 +241,7 @@ fn one_pass_sweep_of_straight_lines_matches_the_walk() {
     let g = cast(&proj, |o, d| court(o, Mat3::from_rotation_z(0.6) * d));
     let g = rotated_points(g, Mat3::from_rotation_z(0.6));
     let one = ssao(&g, &proj, &params(8, 8, INF));
-    let (each, _) = walk(&g, &proj, 32, None);
+    let (each, _) = walk_all(&g, &proj, 32, None);
     let (mut sum, mut worst, mut n) = (0.0f32, 0.0f32, 0usize);
     for c in (0..g.width * g.height).filter(|&c| g.is_valid(c)) {
         assert_eq!(one.no_sample[c], each.no_sample[c]);

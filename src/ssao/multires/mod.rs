@@ -37,10 +37,11 @@
 //! Without a finite `t_max` the march has no scale to compare a block with, and runs every
 //! pixel. The far-field sweeps instead report each pixel's *reach*, the distance to the nearest
 //! sample that bounds a blocked arc of one of its half-planes: plain obscurance changes on that
-//! scale as the pixel moves. A block is planned as above with no bound on its extent (steps
-//! under [`FAR_STEP`] pixel radii are not discontinuities), its corners are evaluated, and it
-//! runs again at full rate when its extent exceeds [`MAX_EXTENT`] × the smallest reach of its
-//! corners, the same ratio as against `t_max`. An open plane has infinite reach and reads 1.
+//! scale as the pixel moves. A block of up to 16×16 is planned as above with no bound on its
+//! extent (steps under [`FAR_STEP`] pixel radii are not discontinuities), its corners are
+//! evaluated, and it is split into quarters when its extent exceeds [`MAX_EXTENT`] × the
+//! smallest reach of its corners, the same ratio as against `t_max`, down to 2×2 blocks, which
+//! then run at full rate. An open plane has infinite reach and reads 1.
 
 use super::{farfield, horizon, AoMap, SsaoParams};
 use crate::gbuffer::GBuffer;
@@ -66,19 +67,29 @@ pub const MAX_TURN_CONCAVE: f32 = 0.1;
 pub const MAX_TURN_CONVEX: f32 = 0.3;
 
 /// Block sizes of the levels: level `l` evaluates one pixel per `SIZES[l]²`.
-pub const SIZES: [usize; 3] = [1, 2, 4];
+pub const SIZES: [usize; 5] = [1, 2, 4, 8, 16];
 
-/// Valid pixels evaluated at each level: full rate, one per 2×2, one per 4×4.
+/// The coarsest level of the march at a finite `t_max` (4×4).
+const MARCH_TOP: usize = 2;
+/// The coarsest level of the far field (16×16): plain obscurance on open ground changes on the
+/// scale of the distance to its occluders, metres on a site, so the reach test of a block's
+/// corners, not a fixed size, bounds its blocks.
+const FAR_TOP: usize = 4;
+
+/// Valid pixels evaluated at each level: full rate, one per 2×2, 4×4, 8×8 and 16×16 (the last
+/// two at `t_max = ∞` only).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Levels {
     /// Pixels of each level (`SIZES`).
-    pub pixels: [u64; 3],
+    pub pixels: [u64; 5],
 }
 
 impl Levels {
     /// Every one of `n` valid pixels at full rate.
     pub fn full(n: u64) -> Levels {
-        Levels { pixels: [n, 0, 0] }
+        Levels {
+            pixels: [n, 0, 0, 0, 0],
+        }
     }
 
     /// Adds `o`'s counts.
@@ -89,21 +100,29 @@ impl Levels {
     }
 
     /// Shares of the pixels at each level (zeros when there are none).
-    pub fn shares(&self) -> [f64; 3] {
+    pub fn shares(&self) -> [f64; 5] {
         let n: u64 = self.pixels.iter().sum();
         let n = n.max(1) as f64;
         self.pixels.map(|k| k as f64 / n)
     }
 
-    /// "full 41.0 %, 2×2 12.5 %, 4×4 46.5 %".
+    /// "full 41.0 %, 2×2 12.5 %, 4×4 46.5 %", and the coarser levels where any pixel ran at
+    /// them.
     pub fn to_text(&self) -> String {
         let s = self.shares();
-        format!(
+        let mut text = format!(
             "full {:.1} %, 2×2 {:.1} %, 4×4 {:.1} %",
             100.0 * s[0],
             100.0 * s[1],
             100.0 * s[2]
-        )
+        );
+        for l in 3..SIZES.len() {
+            if self.pixels[l] > 0 {
+                let b = SIZES[l];
+                text += &format!(", {b}×{b} {:.1} %", 100.0 * s[l]);
+            }
+        }
+        text
     }
 }
 
@@ -227,19 +246,25 @@ pub fn plan(g: &GBuffer, tmax: f32) -> Vec<u8> {
     if !(tmax > 0.0 && tmax.is_finite()) {
         return vec![0u8; g.width * g.height];
     }
-    plan_by(g, |_| MIN_STEP * tmax, MAX_EXTENT * tmax)
+    plan_by(g, |_| MIN_STEP * tmax, MAX_EXTENT * tmax, MARCH_TOP)
 }
 
 /// The levels of the far field (`t_max = ∞`) before its corners are evaluated: no block
 /// extent is ruled out (the corners' reach decides it after), and steps below [`FAR_STEP`]
 /// pixel radii are not discontinuities.
 fn plan_far(g: &GBuffer) -> Vec<u8> {
-    plan_by(g, |c| FAR_STEP * g.radius[c], f32::INFINITY)
+    plan_by(g, |c| FAR_STEP * g.radius[c], f32::INFINITY, FAR_TOP)
 }
 
-/// The levels of the pixels: neighbours within `slack(pixel)` metres of a pixel's tangent
-/// plane are continuous with it, and blocks are at most `max_extent` metres across.
-fn plan_by(g: &GBuffer, slack: impl Fn(usize) -> f32 + Sync, max_extent: f32) -> Vec<u8> {
+/// The levels of the pixels, at most `top`: neighbours within `slack(pixel)` metres of a
+/// pixel's tangent plane are continuous with it, and blocks are at most `max_extent` metres
+/// across.
+fn plan_by(
+    g: &GBuffer,
+    slack: impl Fn(usize) -> f32 + Sync,
+    max_extent: f32,
+    top: usize,
+) -> Vec<u8> {
     let (w, h) = (g.width, g.height);
     let mut level = vec![0u8; w * h];
     if w == 0 {
@@ -252,26 +277,49 @@ fn plan_by(g: &GBuffer, slack: impl Fn(usize) -> f32 + Sync, max_extent: f32) ->
             *k = g.is_valid(c) && discontinuity_at(g, x, y, slack(c)) <= MAX_DISCONTINUITY;
         }
     });
-    let top = SIZES[2];
+    let b = SIZES[top];
     level
-        .par_chunks_mut(w * top)
+        .par_chunks_mut(w * b)
         .enumerate()
         .for_each(|(by, band)| {
-            let y0 = by * top;
-            for x0 in (0..w).step_by(top) {
-                if coarse(g, &cont, x0, y0, top, max_extent) {
-                    fill(band, w, x0, 0, top, 2);
-                    continue;
-                }
-                let half = SIZES[1];
-                for (sx, sy) in [(0, 0), (half, 0), (0, half), (half, half)] {
-                    if coarse(g, &cont, x0 + sx, y0 + sy, half, max_extent) {
-                        fill(band, w, x0 + sx, sy, half, 1);
-                    }
-                }
+            let place = Place {
+                g,
+                cont: &cont,
+                y0: by * b,
+                max_extent,
+            };
+            for x0 in (0..w).step_by(b) {
+                place.block(band, x0, 0, top);
             }
         });
     level
+}
+
+/// What [`Place::block`] reads while it sets the levels of one band of rows from `y0`.
+struct Place<'a> {
+    g: &'a GBuffer,
+    cont: &'a [bool],
+    y0: usize,
+    max_extent: f32,
+}
+
+impl Place<'_> {
+    /// Gives the block of level `l` at column `x0`, band row `r0` that level when it may be
+    /// coarse, else tries its four quarters one level finer (level 0 stays).
+    fn block(&self, band: &mut [u8], x0: usize, r0: usize, l: usize) {
+        if l == 0 {
+            return;
+        }
+        let (w, b) = (self.g.width, SIZES[l]);
+        if coarse(self.g, self.cont, x0, self.y0 + r0, b, self.max_extent) {
+            fill(band, w, x0, r0, b, l as u8);
+            return;
+        }
+        let half = b / 2;
+        for (sx, sy) in [(0, 0), (half, 0), (0, half), (half, half)] {
+            self.block(band, x0 + sx, r0 + sy, l - 1);
+        }
+    }
 }
 
 /// Sets the `b × b` block at column `x0`, row `r0` of `band` to `l`.
@@ -332,7 +380,7 @@ pub fn ssao(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     if super::unmarchable(g, proj).is_some() {
         return full(g, horizon::ssao(g, proj, prm));
     }
-    refine(g, plan(g, prm.tmax), |only| {
+    refine(g, plan(g, prm.tmax), SIZES[MARCH_TOP], |only| {
         (horizon::ssao_masked(g, proj, prm, Some(only)), None)
     })
 }
@@ -343,8 +391,13 @@ pub fn far_field(g: &GBuffer, proj: &Projection, prm: &SsaoParams) -> AoMap {
     if super::unmarchable(g, proj).is_some() {
         return full(g, farfield::ssao(g, proj, prm));
     }
-    refine(g, plan_far(g), |only| {
-        let (map, reach) = farfield::ssao_masked(g, proj, prm, Some(only));
+    let sweeps = farfield::Sweeps::new(g, proj, prm);
+    // Straight-line sweeps pass over every line that holds a pixel to evaluate, whatever their
+    // number: the corners of every block down to 4×4 are evaluated in one pass, not level by
+    // level, and a 4×4 block that fails goes to full rate (one more pass, not two).
+    let lattice = if sweeps.per_pixel() { 2 } else { 4 };
+    refine(g, plan_far(g), lattice, |only| {
+        let (map, reach) = sweeps.eval(Some(only));
         (map, Some(reach))
     })
 }
@@ -358,54 +411,96 @@ fn full(g: &GBuffer, mut map: AoMap) -> AoMap {
 
 /// Evaluates the pixels of `level` with `eval` (the pixels to evaluate → their map, and
 /// optionally each one's reach), runs again at full rate every block a corner of which found
-/// no sample or reaches an occluder nearer than the block's extent over [`MAX_EXTENT`], and
-/// fills in the rest.
+/// no sample, splits into quarters every block whose corners reach an occluder nearer than its
+/// extent over [`MAX_EXTENT`] (evaluating the quarters' new corners, until blocks of 2×2 go
+/// to full rate), and fills in the rest. Blocks split down to `lattice` pixels (a block of that
+/// size that fails runs at full rate); the first evaluation takes the lattice of every block
+/// when `lattice` is above 2, so that the splits need no further evaluation, and only each
+/// block's corners when it is 2, so that a split evaluates only the corners it adds.
 fn refine(
     g: &GBuffer,
     mut level: Vec<u8>,
+    lattice: usize,
     eval: impl Fn(&[bool]) -> (AoMap, Option<Vec<f32>>),
 ) -> AoMap {
     let (w, h) = (g.width, g.height);
-    // Pixels the march evaluates: every full-rate pixel and every coarse block's corners.
+    // Pixels to evaluate: every full-rate pixel and every coarse block's corners.
     let mut need: Vec<bool> = level
         .iter()
         .enumerate()
         .map(|(c, &l)| l == 0 && g.is_valid(c))
         .collect();
-    let blocks = blocks(&level, w, h);
+    let mut blocks = blocks(&level, w, h);
     for &(x0, y0, b) in &blocks {
-        for (dx, dy) in [(0, 0), (b, 0), (0, b), (b, b)] {
-            need[(y0 + dy) * w + x0 + dx] = true;
-        }
-    }
-    let (mut map, reach) = eval(&need);
-    // A block whose corners did not all find a sample runs at full rate, and so does one
-    // whose obscurance changes within it: its corners see occluders nearer than its extent
-    // over MAX_EXTENT.
-    let mut redo = vec![false; w * h];
-    let mut any = false;
-    for &(x0, y0, b) in &blocks {
-        let c = corners(w, x0, y0, b);
-        let near = reach.as_ref().is_some_and(|r| {
-            let nearest = c.iter().map(|&i| r[i]).fold(f32::INFINITY, f32::min);
-            !(extent(g, c) <= MAX_EXTENT * nearest)
-        });
-        if near || c.iter().any(|&i| map.no_sample[i]) {
-            any = true;
-            for y in y0..y0 + b {
-                for x in x0..x0 + b {
-                    redo[y * w + x] = !need[y * w + x];
-                    level[y * w + x] = 0;
-                }
+        let step = if lattice > 2 { lattice.min(b) } else { b };
+        for y in (y0..=y0 + b).step_by(step) {
+            for x in (x0..=x0 + b).step_by(step) {
+                need[y * w + x] = true;
             }
         }
     }
-    if any {
-        let (again, _) = eval(&redo);
-        for c in (0..w * h).filter(|&c| redo[c]) {
-            map.ao[c] = again.ao[c];
-            map.no_sample[c] = again.no_sample[c];
+    let (mut map, mut reach) = eval(&need);
+    let mut done = need.clone();
+    loop {
+        need.fill(false);
+        // Blocks whose corners are all evaluated are settled now (quarters whose corners are
+        // too, in turn); the others wait for the next evaluation.
+        let mut next = Vec::new();
+        while let Some((x0, y0, b)) = blocks.pop() {
+            let c = corners(w, x0, y0, b);
+            let near = reach.as_ref().is_some_and(|r| {
+                let nearest = c.iter().map(|&i| r[i]).fold(f32::INFINITY, f32::min);
+                !(extent(g, c) <= MAX_EXTENT * nearest)
+            });
+            let empty = c.iter().any(|&i| map.no_sample[i]);
+            if !(near || empty) {
+                continue;
+            }
+            let half = b / 2;
+            let quarter = near && !empty && half >= lattice.max(2);
+            for y in y0..y0 + b {
+                let row = &mut level[y * w + x0..y * w + x0 + b];
+                row.fill(if quarter {
+                    half.trailing_zeros() as u8
+                } else {
+                    0
+                });
+                if !quarter {
+                    for (x, n) in (x0..x0 + b).zip(&mut need[y * w + x0..]) {
+                        *n = !done[y * w + x];
+                    }
+                }
+            }
+            if quarter {
+                for (sx, sy) in [(0, 0), (half, 0), (0, half), (half, half)] {
+                    let q = (x0 + sx, y0 + sy, half);
+                    let qc = corners(w, q.0, q.1, half);
+                    if qc.iter().all(|&i| done[i]) {
+                        blocks.push(q);
+                    } else {
+                        next.push(q);
+                        for i in qc {
+                            need[i] |= !done[i];
+                        }
+                    }
+                }
+            }
         }
+        if need.contains(&true) {
+            let (again, r) = eval(&need);
+            for c in (0..w * h).filter(|&c| need[c]) {
+                map.ao[c] = again.ao[c];
+                map.no_sample[c] = again.no_sample[c];
+                if let (Some(to), Some(from)) = (reach.as_mut(), r.as_ref()) {
+                    to[c] = from[c];
+                }
+                done[c] = true;
+            }
+        }
+        if next.is_empty() {
+            break;
+        }
+        blocks = next;
     }
     interpolate(&mut map.ao, &level, w);
     let mut counts = Levels::default();

@@ -188,7 +188,8 @@ fn far_field_open_plane_reads_one_and_runs_coarse() {
     }
     let lv = m.levels.unwrap();
     assert_eq!(lv.pixels.iter().sum::<u64>() as usize, g.filled());
-    assert!(lv.shares()[2] > 0.5, "{}", lv.to_text());
+    // The plane is open everywhere: its blocks take the coarsest level where they fit.
+    assert!(lv.shares()[4] > 0.5, "{}", lv.to_text());
 }
 
 #[test]
