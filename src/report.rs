@@ -179,6 +179,9 @@ pub struct Plan {
     pub largest_view_bytes: u64,
     /// All views together in bytes (estimated): what an in-memory run would hold.
     pub all_views_bytes: u64,
+    /// What the occlusion stage holds beside the largest view while it computes its map
+    /// (estimated): the far-field sweeps' line families at `t_max = ∞`, else nothing.
+    pub occlusion_bytes: u64,
     /// The memory budget in bytes.
     pub budget_bytes: u64,
     /// Point-views the merge will visit (points × kept views, including their own).
@@ -190,9 +193,15 @@ impl Plan {
     pub fn to_text(&self) -> String {
         let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
         let pts: usize = self.scans.iter().map(|s| s.points).sum();
+        let sweeps = if self.occlusion_bytes > 0 {
+            format!(", far-field sweeps {:.3} GiB", gib(self.occlusion_bytes))
+        } else {
+            String::new()
+        };
         format!(
             "plan: {} scans, {} points; pairs kept {}, skipped {} (cannot share surface); \
-             views ≈ {:.2} GiB in all, largest {:.3} GiB; budget {:.2} GiB; {} point-views to merge",
+             views ≈ {:.2} GiB in all, largest {:.3} GiB{sweeps}; budget {:.2} GiB; {} \
+             point-views to merge",
             self.scans.len(),
             pts,
             self.pairs_kept,

@@ -284,6 +284,53 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
     );
 }
 
+/// At `t_max = ∞` the far-field sweeps' line families count in what one step needs: a budget
+/// that holds a step of the march but not the sweeps beside it is reported as too small.
+#[test]
+fn the_far_field_sweeps_count_in_the_budget() {
+    let d = tempfile::tempdir().unwrap();
+    let scans = synth_room(&d.path().join("site"), 2, 256, 128);
+    let inf = ["--tmax", "inf", "--falloff", "none"];
+    let r = merge(&scans, &d.path().join("inf"), &inf);
+    let pixels = r["plan"]["scans"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["map_pixels"].as_u64().unwrap())
+        .max()
+        .unwrap();
+    // Eleven bytes per pixel for each of the 32 families of the default 8 directions.
+    let sweeps = r["plan"]["occlusion_bytes"].as_u64().unwrap();
+    assert_eq!(sweeps, 11 * 32 * pixels);
+    let near = merge(&scans, &d.path().join("near"), &[]);
+    assert_eq!(near["plan"]["occlusion_bytes"], 0);
+
+    let file = scans
+        .iter()
+        .map(|p| std::fs::metadata(p).unwrap().len())
+        .max()
+        .unwrap();
+    let view = r["plan"]["largest_view_bytes"].as_u64().unwrap();
+    let floor = 5 * file + 3 * view + (16 << 20);
+    let budget = format!("{}M", (floor + sweeps / 2).div_ceil(1 << 20));
+    let warned = |r: &serde_json::Value| {
+        r["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("for the far-field sweeps"))
+    };
+    let mut tight = inf.to_vec();
+    tight.extend(["--max-memory", &budget]);
+    assert!(warned(&merge(&scans, &d.path().join("inf-tight"), &tight)));
+    let r = merge(
+        &scans,
+        &d.path().join("near-tight"),
+        &["--max-memory", &budget],
+    );
+    assert!(!warned(&r), "{}", r["warnings"]);
+}
+
 /// A damaged summary in the work directory is written again by the next run (it does not
 /// stop every later merge), and the outputs are the same as before.
 #[test]

@@ -435,20 +435,30 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
         // Temporary files of an earlier run that was killed (their writer is gone).
         crate::products::clean_stale_temps(&cfg.out_dir, &mut warnings);
     }
-    let planned = plan::plan(&cat.scans, &cat.occupancy, sp.tmax, budget);
+    let mut planned = plan::plan(&cat.scans, &cat.occupancy, sp.tmax, budget);
+    let largest_map = cat.scans.iter().map(|c| c.map_pixels).max().unwrap_or(0);
+    planned.plan.occlusion_bytes = crate::ssao::working_bytes(largest_map, &sp);
     warnings.extend(lonely_warnings(cfg, &cat, &planned.lonely));
-    let floor = plan::floor(cat.max_file_bytes, planned.plan.largest_view_bytes);
+    let floor = plan::floor(cat.max_file_bytes, planned.plan.largest_view_bytes)
+        + planned.plan.occlusion_bytes;
     // Freed memory the allocator keeps adds to the peak between two measurements of the map
     // cache: it is kept only when every view fits with that much to spare.
     if !cfg.dry_run && planned.plan.all_views_bytes + 2 * floor <= budget {
         crate::sys::keep_freed_memory();
     }
     if floor > budget {
+        let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+        let sweeps = planned.plan.occlusion_bytes;
+        let of_which = if sweeps > 0 {
+            format!(", of which {:.2} GiB for the far-field sweeps", gib(sweeps))
+        } else {
+            String::new()
+        };
         warnings.push(format!(
-            "--max-memory {:.2} GiB is below what one input file and its view need (≈ {:.2} GiB); \
-             the run goes on with no map cached beyond the one in use",
-            budget as f64 / (1u64 << 30) as f64,
-            floor as f64 / (1u64 << 30) as f64
+            "--max-memory {:.2} GiB is below what one input file and its view need (≈ {:.2} GiB\
+             {of_which}); the run goes on with no map cached beyond the one in use",
+            gib(budget),
+            gib(floor),
         ));
     }
     let mut out = Outcome {

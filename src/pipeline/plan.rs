@@ -203,6 +203,7 @@ pub fn plan(cat: &[CatalogScan], occ: &[Occupancy], tmax: f32, budget: u64) -> P
         pairs_skipped: n * n.saturating_sub(1) - kept,
         largest_view_bytes: vb.iter().copied().max().unwrap_or(0),
         all_views_bytes: vb.iter().sum(),
+        occlusion_bytes: 0,
         budget_bytes: budget,
         point_views,
     };

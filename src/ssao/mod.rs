@@ -137,6 +137,17 @@ pub fn uses_far_field(p: &SsaoParams) -> bool {
     p.estimator == Estimator::Horizon && farfield::applies(p)
 }
 
+/// Bytes the occlusion stage holds beside a view of `pixels` pixels while it computes the
+/// view's map (estimated): the far-field sweeps' line families; the march holds no more than a
+/// few maps of the view's size, which the view's own estimate covers.
+pub fn working_bytes(pixels: u64, p: &SsaoParams) -> u64 {
+    if uses_far_field(p) {
+        farfield::BYTES_PER_PIXEL_AND_FAMILY * farfield::families(p) as u64 * pixels
+    } else {
+        0
+    }
+}
+
 /// Computes the AO map of a view with the chosen estimator, then blurs it.
 pub fn compute(g: &GBuffer, proj: &Projection, p: &SsaoParams) -> AoMap {
     let adaptive = p.sampling == Sampling::Adaptive;
