@@ -446,21 +446,7 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
     if !cfg.dry_run && planned.plan.all_views_bytes + 2 * floor <= budget {
         crate::sys::keep_freed_memory();
     }
-    if floor > budget {
-        let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
-        let sweeps = planned.plan.occlusion_bytes;
-        let of_which = if sweeps > 0 {
-            format!(", of which {:.2} GiB for the far-field sweeps", gib(sweeps))
-        } else {
-            String::new()
-        };
-        warnings.push(format!(
-            "--max-memory {:.2} GiB is below what one input file and its view need (≈ {:.2} GiB\
-             {of_which}); the run goes on with no map cached beyond the one in use",
-            gib(budget),
-            gib(floor),
-        ));
-    }
+    warnings.extend(below_floor(budget, floor, planned.plan.occlusion_bytes));
     let mut out = Outcome {
         plan: planned.plan.clone(),
         scans: Vec::new(),
@@ -609,6 +595,26 @@ fn lonely_warnings(cfg: &Config, cat: &Catalog, lonely: &[(usize, f64)]) -> Vec<
             )
         })
         .collect()
+}
+
+/// The warning for a budget below `floor`, what one step needs (`sweeps` of it for the
+/// far-field sweeps).
+fn below_floor(budget: u64, floor: u64, sweeps: u64) -> Option<String> {
+    if floor <= budget {
+        return None;
+    }
+    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+    let of_which = if sweeps > 0 {
+        format!(", of which {:.2} GiB for the far-field sweeps", gib(sweeps))
+    } else {
+        String::new()
+    };
+    Some(format!(
+        "--max-memory {:.2} GiB is below what one input file and its view need (≈ {:.2} GiB\
+         {of_which}); the run goes on with no map cached beyond the one in use",
+        gib(budget),
+        gib(floor),
+    ))
 }
 
 /// The work directory set up for the run: which views the prepare stage keeps for the merge
