@@ -204,7 +204,7 @@ impl Family {
         let turns = lines.turns();
         let rows: Vec<LineHulls> = (0..lines.count)
             .into_par_iter()
-            .map_init(Vec::new, |pts, l| {
+            .map_init(HullScratch::default, |scratch, l| {
                 let mut row = vec![EMPTY_SAMPLE; len];
                 lines.fill_row(proj, l, turns.as_deref(), &mut row);
                 for s in row.iter_mut() {
@@ -212,7 +212,7 @@ impl Family {
                         *s = EMPTY_SAMPLE;
                     }
                 }
-                line_hulls(row, lines.normal(l), depth, &g.position, pts)
+                line_hulls(row, lines.normal(l), depth, &g.position, scratch)
             })
             .collect();
         let mut fam = Family {
@@ -519,6 +519,15 @@ fn line_normal(shape: &Shape, proj: &Projection, l: usize, len: usize) -> Vec3A 
     }
 }
 
+/// Buffers a thread reuses from block to block and line to line while it builds hulls: the
+/// points in the line's plane, the hull chain (positions in `pts`), and two blocks' vertices.
+#[derive(Default)]
+struct HullScratch {
+    pts: Vec<(f32, f32, u32)>,
+    chain: Vec<usize>,
+    pair: Vec<u32>,
+}
+
 /// One line's samples and the hulls of its blocks, level after level: per block the range of
 /// its vertices in `verts` and the sphere holding them.
 struct LineHulls {
@@ -529,13 +538,13 @@ struct LineHulls {
 }
 
 /// The block hulls of the line `row` (sample pixels) whose plane has normal `m`, at `depth`
-/// levels of blocks (`pts` is scratch).
+/// levels of blocks.
 fn line_hulls(
     row: Vec<u32>,
     m: Vec3A,
     depth: usize,
     pos: &[Vec3],
-    pts: &mut Vec<(f32, f32, u32)>,
+    scratch: &mut HullScratch,
 ) -> LineHulls {
     let m = if m.length_squared() > 0.0 {
         m.normalize()
@@ -549,19 +558,19 @@ fn line_hulls(
         spheres: Vec::with_capacity(2 * row.len().div_ceil(BLOCK as usize)),
         row: Vec::new(),
     };
-    let push = |out: &mut LineHulls, block: &[u32], pts: &mut Vec<(f32, f32, u32)>| {
+    let push = |out: &mut LineHulls, block: &[u32], scratch: &mut HullScratch| {
         let start = out.verts.len();
-        hull(block, plane, pos, pts, &mut out.verts);
+        hull(block, plane, pos, scratch, &mut out.verts);
         out.blocks.push((start as u32, out.verts.len() as u32));
         out.spheres.push(sphere(&out.verts[start..], pos));
     };
     for block in row.chunks(BLOCK as usize) {
-        push(&mut out, block, pts);
+        push(&mut out, block, scratch);
     }
     // The hull of two blocks' union is the hull of their hulls' vertices, which lie side by
     // side in `verts`.
     let mut below = 0..out.blocks.len();
-    let mut pair = Vec::new();
+    let mut pair = std::mem::take(&mut scratch.pair);
     for _ in 1..depth {
         let start = out.blocks.len();
         for b in below.clone().step_by(2) {
@@ -569,23 +578,25 @@ fn line_hulls(
             let (v0, v1) = (out.blocks[b].0 as usize, out.blocks[last].1 as usize);
             pair.clear();
             pair.extend_from_slice(&out.verts[v0..v1]);
-            push(&mut out, &pair, pts);
+            push(&mut out, &pair, scratch);
         }
         below = start..out.blocks.len();
     }
+    scratch.pair = pair;
     out.row = row;
     out
 }
 
 /// Appends to `out` the pixels of a block's samples that are vertices of the convex hull of
-/// their points, projected on the plane spanned by `plane` (`pts` is scratch).
+/// their points, projected on the plane spanned by `plane`.
 fn hull(
     block: &[u32],
     plane: (Vec3A, Vec3A),
     pos: &[Vec3],
-    pts: &mut Vec<(f32, f32, u32)>,
+    scratch: &mut HullScratch,
     out: &mut Vec<u32>,
 ) {
+    let HullScratch { pts, chain, .. } = scratch;
     let (ea, eb) = plane;
     // Coordinates relative to one of the block's points keep f32 cancellation small.
     let origin = block
@@ -617,18 +628,10 @@ fn hull(
         let turn = ax * by - ay * bx;
         turn - COLLINEAR * ((ax * ax + ay * ay) * (bx * bx + by * by)).sqrt()
     };
-    // The chain is built in `out` itself, as pixels, with the points looked up by position in
-    // `pts`; `chain` holds those positions.
-    let mut chain: [usize; 2 * BLOCK as usize + 2] = [0; 2 * BLOCK as usize + 2];
-    let cap = chain.len();
-    let mut big = Vec::new();
-    // Each pass pushes every point once: the chain never holds more than 2 n.
-    let chain: &mut [usize] = if 2 * pts.len() + 2 <= cap {
-        &mut chain[..]
-    } else {
-        big.resize(2 * pts.len() + 2, 0);
-        &mut big[..]
-    };
+    // The chain holds positions in `pts`; each pass pushes every point once, so it never holds
+    // more than 2 n.
+    chain.clear();
+    chain.resize(2 * pts.len() + 2, 0);
     let mut len = 0usize;
     for pass in 0..2 {
         let base = len;
