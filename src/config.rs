@@ -88,8 +88,10 @@ pub struct ComputeParams {
     pub ssao_only: bool,
     /// How the merge combines the views.
     pub occlusion: crate::merge::union::Occlusion,
-    /// Rays per point of the union occlusion and the bent normals.
-    pub rays: u32,
+    /// Rays per point of the union occlusion and the bent normals; `None` = by the mode
+    /// ([`crate::merge::union::AUTO_RAYS`] for the union `auto` runs, else
+    /// [`crate::merge::union::UNION_RAYS`]).
+    pub rays: Option<u32>,
     /// Thickness behind observed surfaces (union); `None` = a tenth of the SSAO radius.
     pub thickness: Option<f32>,
     /// Radius in pixels of the union's edge-aware smoothing over each scan's map (0: none).
@@ -118,8 +120,8 @@ impl Default for ComputeParams {
             blur: true,
             sampling: crate::ssao::Sampling::Adaptive,
             ssao_only: false,
-            occlusion: crate::merge::union::Occlusion::Average,
-            rays: 32,
+            occlusion: crate::merge::union::Occlusion::Auto,
+            rays: None,
             thickness: None,
             union_filter: crate::merge::union::FILTER_RADIUS,
             bent_normals: false,

@@ -62,7 +62,8 @@ pub struct Parameters {
     pub ssao_only: bool,
     /// How the merge combined the views.
     pub occlusion: crate::merge::union::Occlusion,
-    /// The union occlusion's parameters, when its rays ran (`--occlusion union`, bent normals).
+    /// The union occlusion's parameters, when its rays may run (`--occlusion union`, `auto` at
+    /// `t_max = ∞`, bent normals).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub union: Option<crate::merge::union::UnionParams>,
 }
@@ -103,6 +104,9 @@ pub struct ScanReport {
     /// Points given the largest value of the all-round stations that matched them instead of
     /// the weighted average (plain ambient occlusion; `docs/design.md`).
     pub merged_by_largest: u64,
+    /// Points shaded by the union occlusion (`--occlusion union`, or `auto` on an all-round
+    /// station at `t_max = ∞`) rather than by combining the views' values.
+    pub union_points: u64,
     /// (point, view) pairs evaluated by the merge.
     pub point_views: u64,
     /// (point, view) pairs left out before projecting: no stored point of the view was near

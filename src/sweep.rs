@@ -220,7 +220,7 @@ pub fn run(cfg: &SweepConfig, progress: &dyn Fn(&str)) -> Result<Vec<Row>> {
                     directions: st.directions,
                     steps: st.steps,
                     occlusion: Occlusion::Union,
-                    rays,
+                    rays: Some(rays),
                     ssao_only: false,
                     ..cfg.base.clone()
                 };

@@ -1,8 +1,9 @@
 //! Plain ambient occlusion (`t_max = ∞`) merged from stations that look all round: each
 //! station's far field takes what lies behind its surfaces as solid, so its value is a lower
 //! bound of the truth, and the merge takes the largest such value instead of the weighted
-//! average. The rule on a view's maps, and end to end on a colonnade under open sky scored
-//! against rays cast at the exact mesh.
+//! average (`--occlusion average`). The rule on a view's maps, and end to end on a colonnade
+//! under open sky scored against rays cast at the exact mesh, beside the default (`auto`),
+//! which shades those stations' points by the union instead.
 
 mod common;
 
@@ -112,7 +113,7 @@ fn all_round_views_give_their_largest_value_whatever_the_order() {
 }
 
 #[test]
-fn all_round_stations_merge_plain_occlusion_by_their_largest_value() {
+fn all_round_stations_merge_plain_occlusion_by_their_largest_value_or_by_the_union() {
     let tmp = tempfile::tempdir().unwrap();
     let site = tmp.path().join("colonnade");
     let files = synth_site(
@@ -131,15 +132,18 @@ fn all_round_stations_merge_plain_occlusion_by_their_largest_value() {
             "none",
         ],
     );
-    let out = tmp.path().join("out");
     let truth = site.join("reference-mesh");
-    let mut args = vec!["merge", "-q", "--no-preview", "--radius", "0.2"];
-    args.extend(["--tmax", "inf", "--falloff", "none"]);
-    args.extend(["--reference", truth.to_str().unwrap()]);
-    args.extend(["-o", out.to_str().unwrap()]);
-    args.extend(files.iter().map(|f| f.to_str().unwrap()));
-    mvao_ok(&args);
-    let r = report(&out);
+    let run = |occlusion: Option<&str>, out: &std::path::Path| {
+        let mut args = vec!["merge", "-q", "--no-preview", "--radius", "0.2"];
+        args.extend(["--tmax", "inf", "--falloff", "none"]);
+        args.extend(occlusion.map(|o| ["--occlusion", o]).into_iter().flatten());
+        args.extend(["--reference", truth.to_str().unwrap()]);
+        args.extend(["-o", out.to_str().unwrap()]);
+        args.extend(files.iter().map(|f| f.to_str().unwrap()));
+        mvao_ok(&args);
+        report(out)
+    };
+    let r = run(Some("average"), &tmp.path().join("average"));
     assert_eq!(r["parameters"]["merge"]["largest_all_round"], true);
     for s in r["scans"].as_array().unwrap() {
         let (by_largest, points) = (s["merged_by_largest"].as_u64(), s["points"].as_u64());
@@ -156,4 +160,24 @@ fn all_round_stations_merge_plain_occlusion_by_their_largest_value() {
         "merged e_A {merged}, single view {single}"
     );
     assert!(acc("result", "bias") > acc("ssao", "bias") + 0.02);
+
+    // The default shades every point of these stations by the union, whose free-space
+    // evidence undoes what each station's far field takes as solid.
+    let u = run(None, &tmp.path().join("auto"));
+    assert_eq!(u["parameters"]["occlusion"], "auto");
+    assert_eq!(u["parameters"]["union"]["rays"], 8);
+    for s in u["scans"].as_array().unwrap() {
+        assert_eq!(s["union_points"], s["points"], "{s}");
+        assert_eq!(s["merged_by_largest"], 0, "{s}");
+    }
+    let united = u["accuracy"]["result"]["e_a"].as_f64().unwrap();
+    let bias = u["accuracy"]["result"]["bias"].as_f64().unwrap();
+    assert!(
+        united < 0.6 * merged,
+        "union e_A {united}, largest {merged}"
+    );
+    assert!(
+        bias.abs() < acc("result", "bias").abs(),
+        "union bias {bias}"
+    );
 }

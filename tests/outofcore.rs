@@ -287,7 +287,7 @@ fn a_merge_over_more_scans_than_fit_stays_under_the_budget() {
 /// At `t_max = ∞` the far-field sweeps' line families count in what one step needs: a budget
 /// that holds a step of the march but not the sweeps beside it is reported as too small.
 #[test]
-fn the_far_field_sweeps_count_in_the_budget() {
+fn the_far_field_sweeps_and_the_union_count_in_the_budget() {
     let d = tempfile::tempdir().unwrap();
     let scans = synth_room(&d.path().join("site"), 2, 256, 128);
     let inf = ["--tmax", "inf", "--falloff", "none"];
@@ -322,7 +322,26 @@ fn the_far_field_sweeps_count_in_the_budget() {
     };
     let mut tight = inf.to_vec();
     tight.extend(["--max-memory", &budget]);
-    assert!(warned(&merge(&scans, &d.path().join("inf-tight"), &tight)));
+    let r = merge(&scans, &d.path().join("inf-tight"), &tight);
+    assert!(warned(&r));
+    // The union that `auto` runs at ∞ holds both views beside one step: it fits here...
+    let united = |r: &serde_json::Value| {
+        let scans = r["scans"].as_array().unwrap();
+        scans.iter().all(|s| s["union_points"] == s["points"])
+    };
+    assert!(united(&r), "{}", r["warnings"]);
+    // ...and not under a budget of one step alone, where the views are averaged instead.
+    let mut tighter = inf.to_vec();
+    let one_step = format!("{}M", floor.div_ceil(1 << 20));
+    tighter.extend(["--max-memory", &one_step]);
+    let r = merge(&scans, &d.path().join("inf-tighter"), &tighter);
+    let said = r["warnings"].as_array().unwrap().iter().any(|w| {
+        let w = w.as_str().unwrap();
+        w.contains("the union") && w.contains("averaged instead")
+    });
+    assert!(said, "{}", r["warnings"]);
+    let scans_r = r["scans"].as_array().unwrap();
+    assert!(scans_r.iter().all(|s| s["union_points"] == 0));
     let r = merge(
         &scans,
         &d.path().join("near-tight"),

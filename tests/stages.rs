@@ -127,7 +127,7 @@ fn union_occlusion_is_the_same_in_both_stores() {
         tmax: Some(0.4),
         seed: 5,
         occlusion: mvao::Occlusion::Union,
-        rays: 4,
+        rays: Some(4),
         ..Default::default()
     };
     let mem = pipeline::compute(&ds.scans, &prm, &Silent).unwrap();

@@ -26,7 +26,7 @@ fn run(
         radius: Some(radius),
         tmax: Some(tmax),
         occlusion,
-        rays: 64,
+        rays: Some(64),
         bent_normals: bent,
         ..ComputeParams::default()
     };
@@ -278,7 +278,7 @@ fn coarse_view_takes_a_pixel_behind_its_surface_as_solid() {
         radius: Some(0.2),
         tmax: Some(tmax as f32),
         occlusion: Occlusion::Union,
-        rays: 64,
+        rays: Some(64),
         thickness: Some(0.001),
         ..ComputeParams::default()
     };

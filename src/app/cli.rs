@@ -124,13 +124,15 @@ pub struct MergeArgs {
     /// Write each scan's single-view SSAO instead of the multi-view merge.
     #[arg(long)]
     pub ssao_only: bool,
-    /// How views combine: `average` their finished AO per point, or march each point's rays
-    /// through every overlapping view's geometry (`union`).
-    #[arg(long, value_enum, default_value_t = Occlusion::Average)]
+    /// How views combine: `average` their finished AO per point, march each point's rays
+    /// through every overlapping view's geometry (`union`), or `auto`: the union for the
+    /// points of all-round stations at `--tmax inf`, the average elsewhere.
+    #[arg(long, value_enum, default_value_t = Occlusion::Auto)]
     pub occlusion: Occlusion,
-    /// Rays per point of `--occlusion union`.
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(2..=4096))]
-    pub rays: u32,
+    /// Rays per point of the union and the bent normals [default: 8 for the union `auto`
+    /// runs at `--tmax inf`, else 32].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..=4096))]
+    pub rays: Option<u32>,
     /// Depth behind an observed surface taken as solid by `--occlusion union`, metres
     /// [default: radius / 10].
     #[arg(long)]

@@ -141,6 +141,8 @@ pub struct MergeStats {
     pub samples_kept: u64,
     /// Points given the largest all-round view's value ([`MergeParams::largest_all_round`]).
     pub largest: u64,
+    /// Points shaded by the union occlusion instead.
+    pub united: u64,
 }
 
 impl std::ops::AddAssign for MergeStats {
@@ -150,6 +152,7 @@ impl std::ops::AddAssign for MergeStats {
         self.culled += o.culled;
         self.samples_kept += o.samples_kept;
         self.largest += o.largest;
+        self.united += o.united;
     }
 }
 

@@ -81,7 +81,7 @@ pub struct MergeJob<'a> {
     pub mp: MergeParams,
     /// Keep each scan's own SSAO instead of merging.
     pub ssao_only: bool,
-    /// Union occlusion parameters; with `occlusion` union they replace the average.
+    /// Union occlusion parameters; where `occlusion` unites a scan they replace the average.
     pub union: UnionParams,
     /// How the views are combined.
     pub occlusion: Occlusion,
@@ -148,11 +148,19 @@ pub fn run(
             // The own maps come through the store: they are other scans' partner maps too.
             let own = store.maps(i, s.pose, &job.mp)?;
             let (ssao, no_sample) = point_values(&pts.pixel, &own.ao, &own.no_sample);
-            let union = !job.ssao_only && job.occlusion == Occlusion::Union;
+            let union = !job.ssao_only
+                && (job.occlusion).unites(job.mp.largest_all_round, own.projection.all_round());
             let (mut ao, stats) = if job.ssao_only {
                 (ssao.clone(), MergeStats::default())
             } else if union {
-                (Vec::new(), MergeStats::default())
+                let united = s.len() as u64;
+                (
+                    Vec::new(),
+                    MergeStats {
+                        united,
+                        ..Default::default()
+                    },
+                )
             } else {
                 merge_one(job, i, s, &pts.radii, &pts.pixel, &ssao, &own, store)?
             };

@@ -145,8 +145,15 @@ fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> Union
     } else {
         100.0 * sp.radius
     };
+    // `auto` unites only at `t_max = ∞`, where 8 rays already beat averaging by a factor of
+    // two to three on stations under open sky (`docs/accuracy.md`).
+    let default_rays = if prm.occlusion == Occlusion::Auto && mp.largest_all_round {
+        crate::merge::union::AUTO_RAYS
+    } else {
+        crate::merge::union::UNION_RAYS
+    };
     UnionParams {
-        rays: prm.rays.max(2),
+        rays: prm.rays.unwrap_or(default_rays).max(2),
         steps: if sp.tmax.is_finite() { 24 } else { 48 },
         tmax: sp.tmax,
         falloff: sp.falloff,
@@ -447,6 +454,9 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
         crate::sys::keep_freed_memory();
     }
     warnings.extend(below_floor(budget, floor, planned.plan.occlusion_bytes));
+    let base_floor = plan::floor(cat.max_file_bytes, planned.plan.largest_view_bytes);
+    let (occlusion, warned) = occlusion_within(prm, &sp, &planned, base_floor, budget);
+    warnings.extend(warned);
     let mut out = Outcome {
         plan: planned.plan.clone(),
         scans: Vec::new(),
@@ -532,10 +542,11 @@ pub fn run_files(cfg: &Config, obs: &dyn Observer, keep_values: bool) -> Result<
         mp: mplan.mp,
         ssao_only: prm.ssao_only,
         union: union_params(prm, &sp, &mplan.mp),
-        occlusion: prm.occlusion,
+        occlusion,
         bent: prm.bent_normals,
     };
-    let rays = (!prm.ssao_only && prm.occlusion == Occlusion::Union) || prm.bent_normals;
+    let rays =
+        (!prm.ssao_only && occlusion.unites(mplan.mp.largest_all_round, true)) || prm.bent_normals;
     out.union = rays.then_some(job.union);
     let (read, secs) = merge::run(&job, &files, &mut store, &mut writer, obs)?;
     let stats = store.stats();
@@ -615,6 +626,58 @@ fn below_floor(budget: u64, floor: u64, sweeps: u64) -> Option<String> {
         gib(budget),
         gib(floor),
     ))
+}
+
+/// How the merge combines the views within `budget`. The union holds a scan's own view and
+/// every partner's at once (at `t_max = ∞` every view of the site), beside what one step needs
+/// (`floor`): where that does not fit, `auto` averages instead, and an explicit `union` runs
+/// anyway; both say so.
+fn occlusion_within(
+    prm: &ComputeParams,
+    sp: &SsaoParams,
+    planned: &plan::Planned,
+    floor: u64,
+    budget: u64,
+) -> (Occlusion, Option<String>) {
+    let asked = prm.occlusion;
+    if prm.ssao_only || !asked.unites(crate::ssao::uses_far_field(sp), true) {
+        return (asked, None);
+    }
+    let n = planned.view_bytes.len();
+    let held = (0..n)
+        .map(|i| {
+            (0..n)
+                .filter(|&j| j == i || planned.pairs.meets(i, j, 0.0))
+                .map(|j| planned.view_bytes[j])
+                .sum::<u64>()
+        })
+        .max()
+        .unwrap_or(0);
+    if floor + held <= budget {
+        return (asked, None);
+    }
+    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+    let what = format!(
+        "holds up to {:.2} GiB of views at once, beyond --max-memory {:.2} GiB with what one step \
+         needs",
+        gib(held),
+        gib(budget)
+    );
+    match asked {
+        Occlusion::Auto => (
+            Occlusion::Average,
+            Some(format!(
+                "the union that --tmax inf runs on all-round stations {what}: the views are \
+                 averaged instead (--occlusion union runs it anyway)"
+            )),
+        ),
+        _ => (
+            asked,
+            Some(format!(
+                "--occlusion union {what}; the run may go beyond it"
+            )),
+        ),
+    }
 }
 
 /// The work directory set up for the run: which views the prepare stage keeps for the merge

@@ -272,6 +272,7 @@ impl Sink for Writer<'_> {
             no_ssao_sample: m.no_sample,
             zero_merge_weight: m.stats.zero_weight,
             merged_by_largest: m.stats.largest,
+            union_points: m.stats.united,
             point_views: m.stats.point_views,
             point_views_culled: m.stats.culled,
             ao_min: mn,

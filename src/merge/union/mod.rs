@@ -69,8 +69,10 @@ use serde::Serialize;
 
 mod filter;
 mod front;
+mod mode;
 
 use front::{FrontTiles, Seen, Span};
+pub use mode::{Occlusion, AUTO_RAYS, UNION_RAYS};
 
 /// Default radius in pixels of the union's edge-aware smoothing ([`UnionParams::filter`]).
 pub const FILTER_RADIUS: u32 = 3;
@@ -80,17 +82,6 @@ pub const FILTER_RADIUS: u32 = 3;
 /// against true surfaces (`docs/accuracy.md`): 2 hid the gentle relief of the real bunny
 /// (too open), 1/2 let its registration residue occlude it.
 const SAME_BAND: f32 = 1.0;
-
-/// How the merge combines the views.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Occlusion {
-    /// The views' finished AO averaged at each point (eq. 6–12).
-    #[default]
-    Average,
-    /// Each point's rays marched through every overlapping view's geometry.
-    Union,
-}
 
 /// Parameters of the union occlusion.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
