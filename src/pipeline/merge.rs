@@ -149,7 +149,9 @@ pub fn run(
             let own = store.maps(i, s.pose, &job.mp)?;
             let (ssao, no_sample) = point_values(&pts.pixel, &own.ao, &own.no_sample);
             let union = !job.ssao_only
-                && (job.occlusion).unites(job.mp.largest_all_round, own.projection.all_round());
+                && job
+                    .occlusion
+                    .unites(job.mp.largest_all_round, own.projection.all_round());
             let (mut ao, stats) = if job.ssao_only {
                 (ssao.clone(), MergeStats::default())
             } else if union {

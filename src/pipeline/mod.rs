@@ -145,8 +145,8 @@ fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> Union
     } else {
         100.0 * sp.radius
     };
-    // `auto` unites only at `t_max = ∞`, where 8 rays already beat averaging by a factor of
-    // two to three on stations under open sky (`docs/accuracy.md`).
+    // `auto` unites only at `t_max = ∞`, where 8 rays took the error of averaging on stations
+    // under open sky down to 0.3–0.7 of it (`docs/accuracy.md`).
     let default_rays = if prm.occlusion == Occlusion::Auto && mp.largest_all_round {
         crate::merge::union::AUTO_RAYS
     } else {
@@ -658,8 +658,8 @@ fn occlusion_within(
     }
     let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
     let what = format!(
-        "holds up to {:.2} GiB of views at once, beyond --max-memory {:.2} GiB with what one step \
-         needs",
+        "holds about {:.2} GiB of views at once, beyond --max-memory {:.2} GiB with what one \
+         step needs",
         gib(held),
         gib(budget)
     );
