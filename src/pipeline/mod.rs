@@ -629,7 +629,8 @@ fn below_floor(budget: u64, floor: u64, sweeps: u64) -> Option<String> {
 }
 
 /// How the merge combines the views within `budget`. The union holds a scan's own view and
-/// every partner's at once (at `t_max = ∞` every view of the site), beside what one step needs
+/// every partner's at once (at `t_max = ∞` every view of the site), each with its depths and
+/// radii packed for the rays, beside what one step needs
 /// (`floor`): where that does not fit, `auto` averages instead, and an explicit `union` runs
 /// anyway; both say so.
 fn occlusion_within(
@@ -648,7 +649,10 @@ fn occlusion_within(
         .map(|i| {
             (0..n)
                 .filter(|&j| j == i || planned.pairs.meets(i, j, 0.0))
-                .map(|j| planned.view_bytes[j])
+                .map(|j| {
+                    let packed = crate::merge::union::BYTES_PER_VIEW_PIXEL;
+                    planned.view_bytes[j] + packed * planned.plan.scans[j].map_pixels
+                })
                 .sum::<u64>()
         })
         .max()

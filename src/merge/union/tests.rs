@@ -66,12 +66,14 @@ fn runs_of_samples_agree_with_every_sample_they_cover() {
     for (proj, pose) in [(&ortho, DMat4::IDENTITY), (&pinhole, down)] {
         let maps = wavy_view(proj, pose);
         let front = FrontTiles::new(maps.width, &maps.near, |q| depth_in(proj, q.truncate()));
+        let stored = pack_stored(proj, &maps);
         let l = Lens {
             proj,
             maps: &maps,
             rel: Affine3A::from_mat4(pose.inverse().as_mat4()),
             pixel: pixel_size(proj),
             front: Some(&front),
+            stored: &stored,
         };
         for _ in 0..3000 {
             let mut r = || rng.next_f32();
