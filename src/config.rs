@@ -96,6 +96,8 @@ pub struct ComputeParams {
     pub thickness: Option<f32>,
     /// Radius in pixels of the union's edge-aware smoothing over each scan's map (0: none).
     pub union_filter: u32,
+    /// Most views a point's union rays are marched through (0: every view holding it).
+    pub union_views: u32,
     /// Compute each point's bent normal.
     pub bent_normals: bool,
 }
@@ -124,6 +126,7 @@ impl Default for ComputeParams {
             rays: None,
             thickness: None,
             union_filter: crate::merge::union::FILTER_RADIUS,
+            union_views: crate::merge::union::MAX_VIEWS,
             bent_normals: false,
         }
     }

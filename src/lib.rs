@@ -82,7 +82,7 @@ pub(crate) mod view;
 
 pub use error::{Error, Result};
 pub use falloff::Falloff;
-pub use merge::union::{Occlusion, FILTER_RADIUS as UNION_FILTER};
+pub use merge::union::{Occlusion, FILTER_RADIUS as UNION_FILTER, MAX_VIEWS as UNION_VIEWS};
 pub use preview::{PreviewStyle, Tone, Up};
 pub use projection::SensorModel;
 pub use reference::{RefParams, OPEN_MIN_A};

@@ -181,3 +181,53 @@ fn all_round_stations_merge_plain_occlusion_by_their_largest_value_or_by_the_uni
         "union bias {bias}"
     );
 }
+
+#[test]
+fn the_union_marches_each_point_through_a_few_of_many_all_round_views() {
+    // Six stations under open sky: at ∞ every station holds every point's image, so each
+    // point's rays go through four of them by default instead of all six.
+    let tmp = tempfile::tempdir().unwrap();
+    let site = tmp.path().join("porch");
+    let files = synth_site(
+        &site,
+        "porch",
+        6,
+        200,
+        100,
+        &[
+            "--no-normals",
+            "--reference-rays",
+            "32",
+            "--reference-tmax",
+            "inf",
+            "--reference-falloff",
+            "none",
+        ],
+    );
+    let truth = site.join("reference-mesh");
+    let run = |views: Option<&str>, out: &std::path::Path| {
+        let mut args = vec!["merge", "-q", "--no-preview", "--radius", "0.2"];
+        args.extend(["--tmax", "inf", "--falloff", "none"]);
+        args.extend(views.map(|v| ["--union-views", v]).into_iter().flatten());
+        args.extend(["--reference", truth.to_str().unwrap()]);
+        args.extend(["-o", out.to_str().unwrap()]);
+        args.extend(files.iter().map(|f| f.to_str().unwrap()));
+        mvao_ok(&args);
+        report(out)
+    };
+    let capped = run(None, &tmp.path().join("capped"));
+    let all = run(Some("0"), &tmp.path().join("all"));
+    assert_eq!(capped["parameters"]["union"]["views"], 4);
+    assert_eq!(all["parameters"]["union"]["views"], 0);
+    let e = |r: &serde_json::Value, k: &str| r["accuracy"][k]["e_a"].as_f64().unwrap();
+    let (e4, e6, single) = (e(&capped, "result"), e(&all, "result"), e(&capped, "ssao"));
+    eprintln!("single view {single:.4}, union of 4 views {e4:.4}, of all 6 {e6:.4}");
+    assert!(
+        e4 < 0.5 * single,
+        "union of 4 views {e4}, single view {single}"
+    );
+    assert!(
+        e4 <= 1.1 * e6 + 0.002,
+        "union of 4 views {e4}, of all 6 {e6}"
+    );
+}

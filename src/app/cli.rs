@@ -143,6 +143,10 @@ pub struct MergeArgs {
     #[arg(long, default_value_t = mvao::UNION_FILTER,
           value_parser = clap::value_parser!(u32).range(0..=16))]
     pub union_filter: u32,
+    /// Most views each point's union rays are marched through: its own, then those that
+    /// observed the point, finest pixel first (0: every view whose map holds the point).
+    #[arg(long, default_value_t = mvao::UNION_VIEWS)]
+    pub union_views: u32,
     /// Also write each point's bent normal, the cosine-weighted mean unoccluded direction (by
     /// `--rays` rays through every overlapping view), as `bnx bny bnz`: in the file's frame in
     /// a PLY written back, in world coordinates in a result written across formats.
@@ -684,6 +688,7 @@ impl MergeArgs {
                 rays: self.rays,
                 thickness: self.thickness,
                 union_filter: self.union_filter,
+                union_views: self.union_views,
                 bent_normals: self.bent_normals,
             },
             gamma: self.gamma,

@@ -161,6 +161,7 @@ fn union_params(prm: &ComputeParams, sp: &SsaoParams, mp: &MergeParams) -> Union
         thickness: prm.thickness.unwrap_or(0.1 * sp.radius),
         seed: sp.seed,
         filter: prm.union_filter,
+        views: prm.union_views,
     }
 }
 

@@ -228,6 +228,7 @@ mod tests {
             thickness: 0.01,
             seed: 0,
             filter: radius,
+            views: 0,
         };
         let (out, _) = smooth(&t, raw.clone(), None, &vec![nearest; W * H], &prm);
         (raw, out)

@@ -83,6 +83,11 @@ pub const BYTES_PER_VIEW_PIXEL: u64 = 8;
 /// Default radius in pixels of the union's edge-aware smoothing ([`UnionParams::filter`]).
 pub const FILTER_RADIUS: u32 = 3;
 
+/// Default of [`UnionParams::views`]. At `t_max = ∞` every all-round station holds every
+/// point's image, so without a cap a point's cost grows with the site; four took the same
+/// error as all six or eight on open scenes at half the time (`docs/accuracy.md`).
+pub const MAX_VIEWS: u32 = 4;
+
 /// Height over `p`'s tangent plane, in `rad(p) + rad` of the stored point, below which a
 /// stored point of a surface turned less than 60° from `p`'s is `p`'s own surface. Scored
 /// against true surfaces (`docs/accuracy.md`): 2 hid the gentle relief of the real bunny
@@ -110,6 +115,9 @@ pub struct UnionParams {
     /// Radius in pixels of the edge-aware smoothing of the results over each scan's own map
     /// (0: none).
     pub filter: u32,
+    /// Most views a point's rays are marched through ([`view_rank`] chooses; 0: every view
+    /// that holds the point's image).
+    pub views: u32,
 }
 
 /// One view as the rays see it: its maps and the transform from the target's frame.
@@ -835,6 +843,42 @@ struct Scratch<'a> {
     sub: Vec<Lens<'a>>,
     in_view: Vec<InView>,
     prev: Vec<Track>,
+    held: Vec<((u8, f32), usize, Reading)>,
+}
+
+/// Order in which the views that hold a point's image serve its rays (lower first): its own
+/// view, then the views that observed the point (it lies on their stored surface, neither
+/// seen through nor hidden deep behind), then the rest; within each, the finer pixel at the
+/// point first.
+fn view_rank(l: &Lens<'_>, r: &Reading, thickness: f32, own: bool) -> (u8, f32) {
+    let px = l.pixel_size(r.d);
+    let observed = r.s >= -4.0 * r.rad.max(px) && r.s <= solid_depth(thickness, px);
+    (
+        if own {
+            0
+        } else if observed {
+            1
+        } else {
+            2
+        },
+        px,
+    )
+}
+
+/// Moves the `cap` best-ranked of `held` (0: all) to its front in view order, so that the
+/// result does not depend on the ranking's ties; returns how many are kept.
+fn keep_best(held: &mut [((u8, f32), usize, Reading)], cap: usize) -> usize {
+    if cap == 0 || held.len() <= cap {
+        return held.len();
+    }
+    // Unstable sorts do not allocate; the index breaks every tie.
+    held.sort_unstable_by(|a, b| {
+        (a.0 .0.cmp(&b.0 .0))
+            .then(a.0 .1.total_cmp(&b.0 .1))
+            .then(a.1.cmp(&b.1))
+    });
+    held[..cap].sort_unstable_by_key(|e| e.1);
+    cap
 }
 
 /// Union occlusion of every point of `t` against `views` (its own among them), and each
@@ -893,11 +937,18 @@ pub fn union_scan(
             // Only the views that hold the point's image: the others saw nothing around it.
             sc.sub.clear();
             sc.in_view.clear();
-            for l in &lenses {
+            sc.held.clear();
+            for (j, l) in lenses.iter().enumerate() {
                 if let Some(r) = l.read(p) {
-                    sc.sub.push(*l);
-                    sc.in_view.push(InView::new(l, &r, p, n, prm.thickness));
+                    let key = view_rank(l, &r, prm.thickness, std::ptr::eq(l.maps, t.own));
+                    sc.held.push((key, j, r));
                 }
+            }
+            let kept = keep_best(&mut sc.held, prm.views as usize);
+            for &(_, j, r) in &sc.held[..kept] {
+                let l = &lenses[j];
+                sc.sub.push(*l);
+                sc.in_view.push(InView::new(l, &r, p, n, prm.thickness));
             }
             let pt = Shaded {
                 p: p + n * (0.5 * rad),

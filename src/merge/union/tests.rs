@@ -119,3 +119,37 @@ fn a_ray_has_left_the_bounds_only_outside_and_moving_away() {
     assert!(b.left(Vec3::new(0.0, 2.5, 1.0), Vec3::X));
     assert!(!Bounds::ALL.left(Vec3::splat(1e30), up));
 }
+
+#[test]
+fn a_point_keeps_its_own_view_then_those_that_observed_it_finest_first() {
+    let r = Reading {
+        s: 0.0,
+        d: 1.0,
+        rad: 0.01,
+        idx: 0,
+        px: (0, 0),
+    };
+    // (class, pixel size): 0 own, 1 observed the point, 2 holds its image only.
+    let mut held = vec![
+        ((2, 0.001), 0, r),
+        ((1, 0.05), 1, r),
+        ((0, 0.09), 2, r),
+        ((1, 0.02), 3, r),
+        ((1, 0.02), 4, r),
+        ((2, 0.0001), 5, r),
+    ];
+    let kept = keep_best(&mut held, 3);
+    let order: Vec<usize> = held[..kept].iter().map(|e| e.1).collect();
+    // Own, then the two finest observers (tied, so both kept by index), in view order.
+    assert_eq!(order, [2, 3, 4]);
+    let kept = keep_best(&mut held, 5);
+    let mut order: Vec<usize> = held[..kept].iter().map(|e| e.1).collect();
+    // Past the observers, the finer of the views that only hold the image.
+    assert_eq!(order, [1, 2, 3, 4, 5]);
+    // No cap, or a cap above the count: every view, untouched.
+    assert_eq!(keep_best(&mut held, 0), 6);
+    assert_eq!(keep_best(&mut held, 6), 6);
+    order = held.iter().map(|e| e.1).collect();
+    order.sort_unstable();
+    assert_eq!(order, [0, 1, 2, 3, 4, 5]);
+}
