@@ -17,6 +17,39 @@ use mvao::testing::projection::Projection;
 use mvao::testing::sensor::ProjectionChoice;
 use mvao::testing::ssao::{Estimator, SsaoParams};
 
+/// Stations of a mesh `scene` under open sky with a 32-ray truth at `t_max = ∞`; their files
+/// and the truth's directory.
+fn open_site(
+    dir: &std::path::Path,
+    scene: &str,
+    stations: u32,
+    w: u32,
+    h: u32,
+) -> (Vec<std::path::PathBuf>, std::path::PathBuf) {
+    let site = dir.join(scene);
+    let mut extra = vec!["--no-normals", "--reference-rays", "32"];
+    extra.extend(["--reference-tmax", "inf", "--reference-falloff", "none"]);
+    let files = synth_site(&site, scene, stations, w, h, &extra);
+    (files, site.join("reference-mesh"))
+}
+
+/// `mvao merge` of `files` at `t_max = ∞` with `args`, scored against `truth`: its report.
+fn merge_at_inf(
+    files: &[std::path::PathBuf],
+    truth: &std::path::Path,
+    args: &[&str],
+    out: &std::path::Path,
+) -> serde_json::Value {
+    let mut all = vec!["merge", "-q", "--no-preview", "--radius", "0.2"];
+    all.extend(["--tmax", "inf", "--falloff", "none"]);
+    all.extend_from_slice(args);
+    all.extend(["--reference", truth.to_str().unwrap()]);
+    all.extend(["-o", out.to_str().unwrap()]);
+    all.extend(files.iter().map(|f| f.to_str().unwrap()));
+    mvao_ok(&all);
+    report(out)
+}
+
 #[test]
 fn all_round_views_give_their_largest_value_whatever_the_order() {
     let station = Station::equirect(DVec3::new(0.0, 0.0, 1.5), 0.0, 120, 60);
@@ -115,35 +148,9 @@ fn all_round_views_give_their_largest_value_whatever_the_order() {
 #[test]
 fn all_round_stations_merge_plain_occlusion_by_their_largest_value_or_by_the_union() {
     let tmp = tempfile::tempdir().unwrap();
-    let site = tmp.path().join("colonnade");
-    let files = synth_site(
-        &site,
-        "colonnade",
-        3,
-        240,
-        120,
-        &[
-            "--no-normals",
-            "--reference-rays",
-            "32",
-            "--reference-tmax",
-            "inf",
-            "--reference-falloff",
-            "none",
-        ],
-    );
-    let truth = site.join("reference-mesh");
-    let run = |occlusion: Option<&str>, out: &std::path::Path| {
-        let mut args = vec!["merge", "-q", "--no-preview", "--radius", "0.2"];
-        args.extend(["--tmax", "inf", "--falloff", "none"]);
-        args.extend(occlusion.map(|o| ["--occlusion", o]).into_iter().flatten());
-        args.extend(["--reference", truth.to_str().unwrap()]);
-        args.extend(["-o", out.to_str().unwrap()]);
-        args.extend(files.iter().map(|f| f.to_str().unwrap()));
-        mvao_ok(&args);
-        report(out)
-    };
-    let r = run(Some("average"), &tmp.path().join("average"));
+    let (files, truth) = open_site(tmp.path(), "colonnade", 3, 240, 120);
+    let run = |args: &[&str], out: &str| merge_at_inf(&files, &truth, args, &tmp.path().join(out));
+    let r = run(&["--occlusion", "average"], "average");
     assert_eq!(r["parameters"]["merge"]["largest_all_round"], true);
     for s in r["scans"].as_array().unwrap() {
         let (by_largest, points) = (s["merged_by_largest"].as_u64(), s["points"].as_u64());
@@ -163,7 +170,7 @@ fn all_round_stations_merge_plain_occlusion_by_their_largest_value_or_by_the_uni
 
     // The default shades every point of these stations by the union, whose free-space
     // evidence undoes what each station's far field takes as solid.
-    let u = run(None, &tmp.path().join("auto"));
+    let u = run(&[], "auto");
     assert_eq!(u["parameters"]["occlusion"], "auto");
     assert_eq!(u["parameters"]["union"]["rays"], 8);
     for s in u["scans"].as_array().unwrap() {
@@ -187,36 +194,10 @@ fn the_union_marches_each_point_through_a_few_of_many_all_round_views() {
     // Six stations under open sky: at ∞ every station holds every point's image, so each
     // point's rays go through four of them by default instead of all six.
     let tmp = tempfile::tempdir().unwrap();
-    let site = tmp.path().join("porch");
-    let files = synth_site(
-        &site,
-        "porch",
-        6,
-        200,
-        100,
-        &[
-            "--no-normals",
-            "--reference-rays",
-            "32",
-            "--reference-tmax",
-            "inf",
-            "--reference-falloff",
-            "none",
-        ],
-    );
-    let truth = site.join("reference-mesh");
-    let run = |views: Option<&str>, out: &std::path::Path| {
-        let mut args = vec!["merge", "-q", "--no-preview", "--radius", "0.2"];
-        args.extend(["--tmax", "inf", "--falloff", "none"]);
-        args.extend(views.map(|v| ["--union-views", v]).into_iter().flatten());
-        args.extend(["--reference", truth.to_str().unwrap()]);
-        args.extend(["-o", out.to_str().unwrap()]);
-        args.extend(files.iter().map(|f| f.to_str().unwrap()));
-        mvao_ok(&args);
-        report(out)
-    };
-    let capped = run(None, &tmp.path().join("capped"));
-    let all = run(Some("0"), &tmp.path().join("all"));
+    let (files, truth) = open_site(tmp.path(), "porch", 6, 200, 100);
+    let run = |args: &[&str], out: &str| merge_at_inf(&files, &truth, args, &tmp.path().join(out));
+    let capped = run(&[], "capped");
+    let all = run(&["--union-views", "0"], "all");
     assert_eq!(capped["parameters"]["union"]["views"], 4);
     assert_eq!(all["parameters"]["union"]["views"], 0);
     let e = |r: &serde_json::Value, k: &str| r["accuracy"][k]["e_a"].as_f64().unwrap();

@@ -125,8 +125,9 @@ pub struct MergeArgs {
     #[arg(long)]
     pub ssao_only: bool,
     /// How views combine: `average` their finished AO per point, march each point's rays
-    /// through every overlapping view's geometry (`union`), or `auto`: the union for the
-    /// points of all-round stations at `--tmax inf`, the average elsewhere.
+    /// through the geometry of the views that overlap it (`union`, `--union-views`), or
+    /// `auto`: the union for the points of all-round stations at `--tmax inf`, the average
+    /// elsewhere.
     #[arg(long, value_enum, default_value_t = Occlusion::Auto)]
     pub occlusion: Occlusion,
     /// Rays per point of the union and the bent normals [default: 8 for the union `auto`
@@ -148,8 +149,8 @@ pub struct MergeArgs {
     #[arg(long, default_value_t = mvao::UNION_VIEWS)]
     pub union_views: u32,
     /// Also write each point's bent normal, the cosine-weighted mean unoccluded direction (by
-    /// `--rays` rays through every overlapping view), as `bnx bny bnz`: in the file's frame in
-    /// a PLY written back, in world coordinates in a result written across formats.
+    /// the union's `--rays` rays), as `bnx bny bnz`: in the file's frame in a PLY written
+    /// back, in world coordinates in a result written across formats.
     #[arg(long)]
     pub bent_normals: bool,
     /// What happens to input colours.
