@@ -920,6 +920,7 @@ pub fn union_scan(
         })
         .collect();
     let bounds = Bounds::of(&lenses, prm);
+    let ranked = prm.views > 0 && lenses.len() > prm.views as usize;
     let res: Vec<Shade> = (0..t.points.len())
         .into_par_iter()
         .with_min_len(256)
@@ -941,7 +942,12 @@ pub fn union_scan(
             sc.held.clear();
             for (j, l) in lenses.iter().enumerate() {
                 if let Some(r) = l.read(p) {
-                    let key = view_rank(l, &r, prm.thickness, std::ptr::eq(l.maps, t.own));
+                    // Ranked only where the cap can choose among the site's views.
+                    let key = if ranked {
+                        view_rank(l, &r, prm.thickness, std::ptr::eq(l.maps, t.own))
+                    } else {
+                        (0, 0.0)
+                    };
                     sc.held.push((key, j, r));
                 }
             }
